@@ -1,0 +1,368 @@
+//! The command line: `detect` runs the pipeline on files and folders,
+//! `sample` renders a small set of frames with known targets to try it on.
+//! Every flag can also come from a `GCP_TAGGER_*` environment variable.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Mutex;
+use std::time::Duration;
+
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::pipeline::batch::{run_batch, BatchOptions, FrameInput, FrameOutcome};
+use crate::pipeline::detect::{AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType};
+use crate::pipeline::frame::{FrameOptions, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE};
+use crate::pipeline::georef::TargetCrs;
+use crate::pipeline::memory::default_max_ram_bytes;
+use crate::pipeline::output::{render, Format};
+use crate::synth;
+
+/// Exit codes of `detect`, documented in the README.
+pub mod exit {
+    /// Every frame was processed.
+    pub const ALL_GOOD: u8 = 0;
+    /// The results could not be written, or another internal failure.
+    pub const INTERNAL: u8 = 1;
+    /// The command line is wrong (unknown flag, CRS, marker type...).
+    pub const USAGE: u8 = 2;
+    /// Some frames failed; the results of the others were written.
+    pub const SOME_FAILED: u8 = 3;
+    /// No frame could be processed: nothing usable was written.
+    pub const NOTHING_USABLE: u8 = 4;
+}
+
+/// File extensions taken from folders given as inputs.
+const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "tif", "tiff", "png"];
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "gcp-tagger",
+    version,
+    about = "Finds ground control point targets in drone frames"
+)]
+pub struct Cli {
+    /// Log filter (tracing EnvFilter syntax), e.g. "info" or "gcp_tagger=debug".
+    #[arg(long, global = true, env = "GCP_TAGGER_LOG", default_value = "warn")]
+    pub log: String,
+    /// Log as JSON lines instead of text.
+    #[arg(long, global = true, env = "GCP_TAGGER_LOG_JSON")]
+    pub log_json: bool,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Detect targets in frames and write CSV or GeoJSON.
+    Detect(DetectArgs),
+    /// Render sample frames with known targets (and their truth as CSV).
+    Sample(SampleArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct DetectArgs {
+    /// Frames (JPEG, TIFF/GeoTIFF, PNG) or folders of them.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Target types to look for, comma separated: apriltag, aruco.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "apriltag",
+        env = "GCP_TAGGER_MARKER_TYPE"
+    )]
+    pub marker_type: Vec<MarkerType>,
+    /// ArUco dictionary: 4X4_50 ... 7X7_1000, ARUCO_ORIGINAL.
+    #[arg(long, default_value = "4X4_50", env = "GCP_TAGGER_DICTIONARY")]
+    pub dictionary: ArucoDictionary,
+    /// AprilTag family: 16h5, 25h9, 36h10, 36h11.
+    #[arg(long, default_value = "36h11", env = "GCP_TAGGER_APRILTAG_FAMILY")]
+    pub apriltag_family: AprilTagFamily,
+    /// CRS of the world coordinates: EPSG:n, WKT, PROJJSON or a PROJ string.
+    #[arg(long, env = "GCP_TAGGER_CRS")]
+    pub crs: String,
+    /// Result file; its extension (.csv, .geojson) picks the format. "-" writes CSV to stdout.
+    #[arg(long, short, env = "GCP_TAGGER_OUTPUT")]
+    pub output: PathBuf,
+    /// Output format, overriding the extension: csv or geojson.
+    #[arg(long)]
+    pub format: Option<Format>,
+    /// Memory limit for the whole process, in GiB (default: half of the machine's or container's memory).
+    #[arg(long, env = "GCP_TAGGER_MAX_RAM_GB")]
+    pub max_ram_gb: Option<f64>,
+    /// Largest corner move, in pixels, accepted from subpixel refinement; a larger move is rejected and flagged (default: 0.6 of a marker cell, at least 1.5 px).
+    #[arg(long, env = "GCP_TAGGER_PIXEL_TOLERANCE")]
+    pub pixel_tolerance: Option<f64>,
+    /// Frames processed at once (default: number of cores).
+    #[arg(long, env = "GCP_TAGGER_THREADS")]
+    pub threads: Option<usize>,
+    /// Tile side in pixels.
+    #[arg(long, default_value_t = DEFAULT_TILE_SIZE, env = "GCP_TAGGER_TILE_SIZE")]
+    pub tile_size: usize,
+    /// Largest target side in pixels; tiles overlap by more than this.
+    #[arg(long, default_value_t = DEFAULT_MAX_TARGET_PX, env = "GCP_TAGGER_MAX_TARGET_PX")]
+    pub max_target_px: usize,
+    /// Smallest target side in pixels that is searched for.
+    #[arg(long, default_value_t = 16.0, env = "GCP_TAGGER_MIN_TARGET_PX")]
+    pub min_target_px: f64,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct SampleArgs {
+    /// Folder to write the frames and truth.csv into.
+    #[arg(long, default_value = "sample-frames")]
+    pub out: PathBuf,
+    /// Number of frames.
+    #[arg(long, default_value_t = 4)]
+    pub frames: usize,
+    /// Frame width and height in pixels.
+    #[arg(long, default_value_t = 4000)]
+    pub width: usize,
+    #[arg(long, default_value_t = 3000)]
+    pub height: usize,
+    /// Markers per frame.
+    #[arg(long, default_value_t = 6)]
+    pub markers: usize,
+    /// File format: jpeg, png or gtiff (gtiff carries a UTM georeference).
+    #[arg(long, default_value = "gtiff")]
+    pub kind: synth::FileKind,
+    /// Seed of the deterministic generator.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// Runs `detect`; returns the process exit code.
+pub fn detect(args: DetectArgs) -> ExitCode {
+    match detect_inner(args) {
+        Ok(code) => ExitCode::from(code),
+        Err((code, message)) => {
+            eprintln!("error: {message}");
+            ExitCode::from(code)
+        }
+    }
+}
+
+fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
+    let usage = |m: String| (exit::USAGE, m);
+    // Everything the user typed is checked before any frame is read.
+    let crs = TargetCrs::parse(&args.crs).map_err(|e| usage(e.to_string()))?;
+    let format = match args.format {
+        Some(f) => f,
+        None if args.output == Path::new("-") => Format::Csv,
+        None => Format::from_path(&args.output).ok_or_else(|| {
+            usage(format!(
+                "cannot tell the format of {:?}: use .csv or .geojson, or --format",
+                args.output
+            ))
+        })?,
+    };
+    if args.tile_size < 256 {
+        return Err(usage(format!(
+            "--tile-size {} is below the 256 px minimum",
+            args.tile_size
+        )));
+    }
+    if args.max_target_px * 2 > args.tile_size {
+        return Err(usage(format!(
+            "--max-target-px {} must be at most half of --tile-size {}",
+            args.max_target_px, args.tile_size
+        )));
+    }
+    if let Some(t) = args.pixel_tolerance {
+        if !(t.is_finite() && t > 0.0) {
+            return Err(usage(format!(
+                "--pixel-tolerance must be a positive number of pixels, got {t}"
+            )));
+        }
+    }
+    let max_ram_bytes = match args.max_ram_gb {
+        Some(gb) if gb.is_finite() && gb > 0.0 => (gb * (1u64 << 30) as f64) as u64,
+        Some(gb) => return Err(usage(format!("--max-ram-gb must be positive, got {gb}"))),
+        None => default_max_ram_bytes(),
+    };
+    let inputs = collect_inputs(&args.inputs).map_err(usage)?;
+    if inputs.is_empty() {
+        eprintln!("error: no image files (.jpg, .tif, .png) found in the inputs");
+        return Ok(exit::NOTHING_USABLE);
+    }
+
+    let mut modes = args.marker_type.clone();
+    modes.sort();
+    modes.dedup();
+    let options = BatchOptions {
+        frame: FrameOptions {
+            detector: DetectorConfig {
+                modes,
+                aruco_dictionary: args.dictionary,
+                apriltag_family: args.apriltag_family,
+                min_target_px: args.min_target_px,
+                max_refine_shift_px: args.pixel_tolerance,
+            },
+            tile_size: args.tile_size,
+            max_target_px: args.max_target_px,
+            crs: crs.clone(),
+        },
+        threads: args
+            .threads
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+        max_ram_bytes,
+    };
+
+    let bar = progress_bar(inputs.len() as u64, args.quiet);
+    let failures = Mutex::new(0usize);
+    let on_frame = |input: &FrameInput, outcome: &FrameOutcome| {
+        bar.suspend(|| match outcome {
+            Ok(result) => {
+                for w in &result.warnings {
+                    eprintln!("warning: {}: {w}", input.name);
+                }
+            }
+            Err(e) => {
+                eprintln!("error: {}: {e}", input.name);
+                *failures.lock().expect("failure count") += 1;
+            }
+        });
+        bar.inc(1);
+    };
+    let outcomes = run_batch(&inputs, &options, &on_frame);
+    bar.finish_and_clear();
+
+    let mut frames: Vec<_> = outcomes.into_iter().filter_map(Result::ok).collect();
+    frames.sort_by(|a, b| a.image.cmp(&b.image));
+    let failed = failures.into_inner().expect("failure count");
+    if frames.is_empty() {
+        eprintln!(
+            "error: none of the {} frames could be processed; nothing written",
+            inputs.len()
+        );
+        return Ok(exit::NOTHING_USABLE);
+    }
+    let text = render(format, &frames, &crs);
+    write_output(&args.output, text.as_bytes()).map_err(|e| (exit::INTERNAL, e))?;
+    let targets: usize = frames.iter().map(|f| f.targets.len()).sum();
+    if !args.quiet {
+        eprintln!(
+            "{} frames, {} targets, {} failed -> {}",
+            frames.len() + failed,
+            targets,
+            failed,
+            args.output.display()
+        );
+    }
+    Ok(if failed > 0 {
+        exit::SOME_FAILED
+    } else {
+        exit::ALL_GOOD
+    })
+}
+
+/// Files as given, and the image files inside folders (recursively, sorted),
+/// each named by its path relative to the folder.
+fn collect_inputs(paths: &[PathBuf]) -> Result<Vec<FrameInput>, String> {
+    let mut out = Vec::new();
+    for path in paths {
+        if path.is_dir() {
+            let mut found = Vec::new();
+            walk(path, &mut found).map_err(|e| format!("cannot list {}: {e}", path.display()))?;
+            found.sort();
+            for file in found {
+                let name = file
+                    .strip_prefix(path)
+                    .unwrap_or(&file)
+                    .to_string_lossy()
+                    .into_owned();
+                out.push(FrameInput { path: file, name });
+            }
+        } else if path.exists() {
+            let name = path
+                .file_name()
+                .map_or_else(|| path.to_string_lossy(), |n| n.to_string_lossy());
+            out.push(FrameInput {
+                path: path.clone(),
+                name: name.into_owned(),
+            });
+        } else {
+            return Err(format!("input {} does not exist", path.display()));
+        }
+    }
+    Ok(out)
+}
+
+fn walk(dir: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.is_dir() {
+            walk(&path, out)?;
+        } else if path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+        {
+            out.push(path);
+        }
+    }
+    Ok(())
+}
+
+fn progress_bar(len: u64, quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    // Hidden automatically when stderr is not a terminal.
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} frames  {per_sec}  ETA {eta}")
+            .expect("valid template"),
+    );
+    bar.enable_steady_tick(Duration::from_millis(250));
+    bar
+}
+
+/// Writes atomically: a temporary file beside the target, then a rename, so a
+/// crash never leaves a half-written result that looks complete.
+fn write_output(path: &Path, bytes: &[u8]) -> Result<(), String> {
+    if path == Path::new("-") {
+        return std::io::stdout()
+            .write_all(bytes)
+            .map_err(|e| format!("cannot write stdout: {e}"));
+    }
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(
+        ".{}.tmp",
+        path.file_name()
+            .map_or("out".into(), |n| n.to_string_lossy())
+    ));
+    std::fs::write(&tmp, bytes)
+        .and_then(|_| std::fs::rename(&tmp, path))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+}
+
+/// Runs `sample`.
+pub fn sample(args: SampleArgs) -> ExitCode {
+    let spec = synth::FlightSpec {
+        frames: args.frames,
+        width: args.width,
+        height: args.height,
+        markers: args.markers,
+        kind: args.kind,
+        seed: args.seed,
+    };
+    match synth::write_flight(&args.out, &spec) {
+        Ok(n) => {
+            eprintln!("wrote {n} frames and truth.csv to {}", args.out.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(exit::INTERNAL)
+        }
+    }
+}

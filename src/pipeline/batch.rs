@@ -1,0 +1,89 @@
+//! Many frames on a bounded set of worker threads under one RAM budget.
+//! Results come back in input order, so output bytes do not depend on the
+//! number of threads or on which frame finished first.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use super::frame::{
+    detect_frame, FrameError, FrameObserver, FrameOptions, FrameResult, NoObserver,
+};
+use super::georef::Transformer;
+use super::memory::{estimate_frame_bytes, RamBudget};
+use super::raster::open_frame;
+
+/// A frame to process: where it is and what to call it in outputs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FrameInput {
+    pub path: PathBuf,
+    pub name: String,
+}
+
+/// One frame's outcome.
+pub type FrameOutcome = Result<FrameResult, FrameError>;
+
+/// Settings for a batch.
+#[derive(Debug, Clone)]
+pub struct BatchOptions {
+    pub frame: FrameOptions,
+    pub threads: usize,
+    /// The process's memory limit; frames share what is left after the
+    /// process's base footprint.
+    pub max_ram_bytes: u64,
+}
+
+/// Processes `inputs` and returns one outcome per input, in input order.
+/// `on_frame` is called as each frame ends (from worker threads).
+pub fn run_batch(
+    inputs: &[FrameInput],
+    options: &BatchOptions,
+    on_frame: &(dyn Fn(&FrameInput, &FrameOutcome) + Sync),
+) -> Vec<FrameOutcome> {
+    super::init_native();
+    let budget = RamBudget::for_process_limit(options.max_ram_bytes);
+    let next = AtomicUsize::new(0);
+    let slots: Vec<Mutex<Option<FrameOutcome>>> = inputs.iter().map(|_| Mutex::new(None)).collect();
+    let workers = options.threads.clamp(1, inputs.len().max(1));
+    std::thread::scope(|scope| {
+        for worker in 0..workers {
+            let (budget, next, slots) = (&budget, &next, &slots);
+            std::thread::Builder::new()
+                .name(format!("frame-worker-{worker}"))
+                .spawn_scoped(scope, move || {
+                    // PROJ objects are per thread; reuse them across frames.
+                    let mut transformer = Transformer::default();
+                    loop {
+                        let i = next.fetch_add(1, Ordering::SeqCst);
+                        let Some(input) = inputs.get(i) else { break };
+                        let outcome =
+                            run_one(input, &options.frame, budget, &mut transformer, &NoObserver);
+                        on_frame(input, &outcome);
+                        *slots[i].lock().expect("slot lock") = Some(outcome);
+                    }
+                })
+                .expect("spawn frame worker");
+        }
+    });
+    slots
+        .into_iter()
+        .map(|s| s.into_inner().expect("slot lock").expect("every frame ran"))
+        .collect()
+}
+
+/// Opens one frame, waits for its share of the budget, and runs it.
+pub fn run_one(
+    input: &FrameInput,
+    options: &FrameOptions,
+    budget: &RamBudget,
+    transformer: &mut Transformer,
+    observer: &dyn FrameObserver,
+) -> FrameOutcome {
+    let span = tracing::info_span!("frame", image = %input.name);
+    let _enter = span.enter();
+    let frame = open_frame(&input.path)?;
+    let need = estimate_frame_bytes(frame.header(), options.tile_size);
+    let _permit = budget.acquire(need)?;
+    tracing::debug!(need_mib = need >> 20, "frame admitted");
+    detect_frame(frame, &input.name, options, transformer, observer)
+}

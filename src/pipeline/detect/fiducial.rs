@@ -1,0 +1,369 @@
+//! AprilTag and ArUco markers through OpenCV 4.6's `aruco` module, with our
+//! own subpixel corner refinement and bit-error read-back.
+//!
+//! Every call into `opencv::aruco` lives in this file: OpenCV 4.7 moved the
+//! detector into `objdetect` with a different API, and an upgrade should touch
+//! only this module.
+
+use std::fmt;
+use std::str::FromStr;
+
+use opencv::aruco::{self, DetectorParameters, Dictionary, PREDEFINED_DICTIONARY_NAME as P};
+use opencv::core::{self, Mat, Point2f, Ptr, Size, TermCriteria, Vector};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+use super::geometry::{self, Pt};
+use super::{DetectError, Detection, Detector, MarkerType, Refinement};
+
+/// ArUco dictionaries by the names users know them under.
+const ARUCO_DICTIONARIES: &[(&str, P)] = &[
+    ("4X4_50", P::DICT_4X4_50),
+    ("4X4_100", P::DICT_4X4_100),
+    ("4X4_250", P::DICT_4X4_250),
+    ("4X4_1000", P::DICT_4X4_1000),
+    ("5X5_50", P::DICT_5X5_50),
+    ("5X5_100", P::DICT_5X5_100),
+    ("5X5_250", P::DICT_5X5_250),
+    ("5X5_1000", P::DICT_5X5_1000),
+    ("6X6_50", P::DICT_6X6_50),
+    ("6X6_100", P::DICT_6X6_100),
+    ("6X6_250", P::DICT_6X6_250),
+    ("6X6_1000", P::DICT_6X6_1000),
+    ("7X7_50", P::DICT_7X7_50),
+    ("7X7_100", P::DICT_7X7_100),
+    ("7X7_250", P::DICT_7X7_250),
+    ("7X7_1000", P::DICT_7X7_1000),
+    ("ARUCO_ORIGINAL", P::DICT_ARUCO_ORIGINAL),
+];
+
+/// AprilTag families OpenCV ships.
+const APRILTAG_FAMILIES: &[(&str, P)] = &[
+    ("16h5", P::DICT_APRILTAG_16h5),
+    ("25h9", P::DICT_APRILTAG_25h9),
+    ("36h10", P::DICT_APRILTAG_36h10),
+    ("36h11", P::DICT_APRILTAG_36h11),
+];
+
+fn lookup(
+    table: &[(&'static str, P)],
+    name: &str,
+    what: &str,
+) -> Result<(&'static str, P), String> {
+    let wanted = name
+        .trim()
+        .trim_start_matches("DICT_")
+        .trim_start_matches("dict_");
+    let wanted = wanted
+        .trim_start_matches("APRILTAG_")
+        .trim_start_matches("tag");
+    table
+        .iter()
+        .find(|(n, _)| n.eq_ignore_ascii_case(wanted))
+        .copied()
+        .ok_or_else(|| {
+            let names: Vec<_> = table.iter().map(|(n, _)| *n).collect();
+            format!(
+                "unknown {what} {name:?} (expected one of: {})",
+                names.join(", ")
+            )
+        })
+}
+
+macro_rules! named_dictionary {
+    ($name:ident, $table:ident, $what:literal, $default:literal) => {
+        #[doc = concat!("A validated ", $what, " name.")]
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        pub struct $name(&'static str, P);
+
+        impl $name {
+            pub fn name(self) -> &'static str {
+                self.0
+            }
+            pub(super) fn opencv_name(self) -> P {
+                self.1
+            }
+        }
+        impl Default for $name {
+            fn default() -> Self {
+                $default.parse().expect("default is in the table")
+            }
+        }
+        impl FromStr for $name {
+            type Err = String;
+            fn from_str(s: &str) -> Result<Self, String> {
+                lookup($table, s, $what).map(|(n, p)| $name(n, p))
+            }
+        }
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(self.0)
+            }
+        }
+    };
+}
+
+named_dictionary!(
+    ArucoDictionary,
+    ARUCO_DICTIONARIES,
+    "ArUco dictionary",
+    "4X4_50"
+);
+named_dictionary!(
+    AprilTagFamily,
+    APRILTAG_FAMILIES,
+    "AprilTag family",
+    "36h11"
+);
+
+/// Largest plausible corner move during refinement, as a fraction of a
+/// marker cell: raw corners come from a polygon fitted to the thresholded
+/// contour and are within about a pixel of the truth.
+const MAX_SHIFT_CELLS: f64 = 0.6;
+/// ... and never less than this many pixels, so tiny markers keep some slack.
+const MIN_SHIFT_LIMIT_PX: f64 = 1.5;
+
+/// Detector for one AprilTag family or ArUco dictionary.
+pub struct FiducialDetector {
+    marker_type: MarkerType,
+    dictionary: Ptr<Dictionary>,
+    params: Ptr<DetectorParameters>,
+    /// Data bits per side (without the black border).
+    bits: i32,
+    min_target_px: f64,
+    max_shift_px: Option<f64>,
+}
+
+impl FiducialDetector {
+    pub fn new(
+        marker_type: MarkerType,
+        name: P,
+        config: &super::DetectorConfig,
+    ) -> opencv::Result<Self> {
+        let dictionary = aruco::get_predefined_dictionary(name)?;
+        let bits = dictionary.marker_size();
+        let mut params = DetectorParameters::create()?;
+        // Aerial frames: small markers, up to the frame border, no OpenCV
+        // refinement (we refine with a window scaled to the marker below).
+        params.set_min_distance_to_border(1);
+        params.set_corner_refinement_method(aruco::CORNER_REFINE_NONE);
+        params.set_adaptive_thresh_win_size_min(5);
+        params.set_adaptive_thresh_win_size_max(25);
+        params.set_adaptive_thresh_win_size_step(10);
+        params.set_polygonal_approx_accuracy_rate(0.05);
+        params.set_min_corner_distance_rate(0.05);
+        Ok(FiducialDetector {
+            marker_type,
+            dictionary,
+            params,
+            bits,
+            min_target_px: config.min_target_px,
+            max_shift_px: config.max_refine_shift_px,
+        })
+    }
+
+    /// Refines the four outer corners with `cornerSubPix`, the search window
+    /// scaled to one marker cell (the black border's width), and rejects any
+    /// move larger than [`MAX_SHIFT_CELLS`].
+    fn refine_corners(
+        &self,
+        tile: &Mat,
+        raw: &[Pt; 4],
+    ) -> opencv::Result<([Pt; 4], f64, Refinement)> {
+        let cell = geometry::mean_side(raw) / (self.bits + 2) as f64;
+        let half = (cell * 0.9).floor().clamp(2.0, 20.0) as i32;
+        let mut pts: Vector<Point2f> = raw
+            .iter()
+            .map(|&(x, y)| Point2f::new(x as f32, y as f32))
+            .collect();
+        let criteria =
+            TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 50, 0.001)?;
+        imgproc::corner_sub_pix(
+            tile,
+            &mut pts,
+            Size::new(half, half),
+            Size::new(-1, -1),
+            criteria,
+        )?;
+        let limit = self
+            .max_shift_px
+            .unwrap_or((cell * MAX_SHIFT_CELLS).max(MIN_SHIFT_LIMIT_PX));
+        let mut out = *raw;
+        let mut max_shift: f64 = 0.0;
+        let mut refinement = Refinement::Refined;
+        for (i, p) in pts.iter().enumerate() {
+            let refined = (p.x as f64, p.y as f64);
+            let shift = geometry::dist(refined, raw[i]);
+            max_shift = max_shift.max(shift);
+            if shift <= limit && shift.is_finite() {
+                out[i] = refined;
+            } else {
+                refinement = Refinement::Rejected;
+            }
+        }
+        Ok((out, max_shift, refinement))
+    }
+
+    /// Reads every cell through the refined quad and compares the data bits
+    /// with the dictionary's code for `id`: (bit errors, decision margin).
+    fn read_back(&self, tile: &Mat, corners: &[Pt; 4], id: i32) -> opencv::Result<(u32, f64)> {
+        let n = (self.bits + 2) as usize;
+        let h = geometry::square_to_quad(corners);
+        let mut cells = vec![0f64; n * n];
+        for (k, v) in cells.iter_mut().enumerate() {
+            let (row, col) = (k / n, k % n);
+            let mut sum = 0.0;
+            // 3x3 samples over the central half of the cell.
+            for sy in [-0.25, 0.0, 0.25] {
+                for sx in [-0.25, 0.0, 0.25] {
+                    let u = (col as f64 + 0.5 + sx) / n as f64;
+                    let w = (row as f64 + 0.5 + sy) / n as f64;
+                    sum += bilinear(tile, geometry::apply(&h, (u, w)))?;
+                }
+            }
+            *v = sum / 9.0;
+        }
+        // Two-class threshold: start at the mid-range, settle on the midpoint
+        // of the class means.
+        let (lo, hi) = cells
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        let mut t = (lo + hi) / 2.0;
+        for _ in 0..10 {
+            let (mut sb, mut nb, mut sw, mut nw) = (0.0, 0.0, 0.0, 0.0);
+            for &v in &cells {
+                if v > t {
+                    sw += v;
+                    nw += 1.0
+                } else {
+                    sb += v;
+                    nb += 1.0
+                }
+            }
+            if nb == 0.0 || nw == 0.0 {
+                break;
+            }
+            t = (sb / nb + sw / nw) / 2.0;
+        }
+        let contrast = (hi - lo).max(1.0);
+        let margin = cells.iter().map(|v| (v - t).abs()).fold(f64::MAX, f64::min) / contrast;
+        let inner = self.bits as usize;
+        let mut bits =
+            Mat::new_rows_cols_with_default(inner as i32, inner as i32, core::CV_8UC1, 0.into())?;
+        let mut border_errors = 0;
+        for row in 0..n {
+            for col in 0..n {
+                let white = cells[row * n + col] > t;
+                if row == 0 || col == 0 || row == n - 1 || col == n - 1 {
+                    border_errors += white as u32;
+                } else if white {
+                    *bits.at_2d_mut::<u8>(row as i32 - 1, col as i32 - 1)? = 1;
+                }
+            }
+        }
+        let data_errors = self.dictionary.get_distance_to_id(&bits, id, true)? as u32;
+        Ok((data_errors + border_errors, margin))
+    }
+}
+
+impl Detector for FiducialDetector {
+    fn marker_type(&self) -> MarkerType {
+        self.marker_type
+    }
+
+    fn detect(
+        &mut self,
+        tile: &Mat,
+        origin: (usize, usize),
+        seams: [bool; 4],
+    ) -> Result<Vec<Detection>, DetectError> {
+        let err = |source| DetectError {
+            x: origin.0,
+            y: origin.1,
+            source,
+        };
+        let (w, h) = (tile.cols() as f64, tile.rows() as f64);
+        // OpenCV expresses the smallest marker as a perimeter relative to the
+        // tile's larger side.
+        let rate = (4.0 * self.min_target_px / w.max(h)).min(1.0);
+        self.params.set_min_marker_perimeter_rate(rate);
+        let mut corners: Vector<Vector<Point2f>> = Vector::new();
+        let mut ids: Vector<i32> = Vector::new();
+        let mut rejected: Vector<Vector<Point2f>> = Vector::new();
+        aruco::detect_markers(
+            tile,
+            &self.dictionary,
+            &mut corners,
+            &mut ids,
+            &self.params,
+            &mut rejected,
+        )
+        .map_err(err)?;
+        let mut out = Vec::with_capacity(ids.len());
+        for (quad, id) in corners.iter().zip(ids.iter()) {
+            let raw: [Pt; 4] = std::array::from_fn(|i| {
+                let p = quad.get(i).expect("aruco returns four corners");
+                (p.x as f64, p.y as f64)
+            });
+            let (refined, shift, refinement) = self.refine_corners(tile, &raw).map_err(err)?;
+            let (bit_errors, margin) = self.read_back(tile, &refined, id).map_err(err)?;
+            let centre = geometry::diagonal_intersection(&refined);
+            let (ox, oy) = (origin.0 as f64, origin.1 as f64);
+            out.push(Detection {
+                marker_type: self.marker_type,
+                marker_id: Some(id as u32),
+                center: (centre.0 + ox, centre.1 + oy),
+                corners: refined.map(|(x, y)| (x + ox, y + oy)),
+                size_px: geometry::mean_side(&refined),
+                refine_shift_px: shift,
+                refinement,
+                bit_errors: Some(bit_errors),
+                decision_margin: Some(margin),
+                tile_margin: geometry::seam_margin(&refined, w, h, seams),
+            });
+        }
+        Ok(out)
+    }
+}
+
+/// Bilinear grey value at a subpixel position (OpenCV pixel centres),
+/// clamped to the tile.
+fn bilinear(img: &Mat, p: Pt) -> opencv::Result<f64> {
+    let (w, h) = (img.cols() - 1, img.rows() - 1);
+    let x = p.0.clamp(0.0, w as f64);
+    let y = p.1.clamp(0.0, h as f64);
+    let (x0, y0) = (x.floor() as i32, y.floor() as i32);
+    let (x1, y1) = ((x0 + 1).min(w), (y0 + 1).min(h));
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let v = |xx: i32, yy: i32| img.at_2d::<u8>(yy, xx).map(|v| *v as f64);
+    let top = v(x0, y0)? * (1.0 - fx) + v(x1, y0)? * fx;
+    let bottom = v(x0, y1)? * (1.0 - fx) + v(x1, y1)? * fx;
+    Ok(top * (1.0 - fy) + bottom * fy)
+}
+
+/// The cells of marker `id` including its one-cell black border, true for
+/// white, rendered by OpenCV's own `drawMarker` (used by the test generator).
+pub fn marker_bits(
+    marker_type: MarkerType,
+    dictionary: &str,
+    id: u32,
+) -> Result<Vec<Vec<bool>>, String> {
+    let name = match marker_type {
+        MarkerType::AprilTag => dictionary.parse::<AprilTagFamily>()?.opencv_name(),
+        MarkerType::Aruco => dictionary.parse::<ArucoDictionary>()?.opencv_name(),
+    };
+    let render = || -> opencv::Result<Vec<Vec<bool>>> {
+        let dict = aruco::get_predefined_dictionary(name)?;
+        let n = dict.marker_size() + 2;
+        let mut img = Mat::default();
+        aruco::draw_marker(&dict, id as i32, n, &mut img, 1)?;
+        (0..n)
+            .map(|r| {
+                (0..n)
+                    .map(|c| img.at_2d::<u8>(r, c).map(|v| *v > 127))
+                    .collect()
+            })
+            .collect()
+    };
+    render().map_err(|e| format!("cannot draw {marker_type} {dictionary} id {id}: {e}"))
+}

@@ -1,0 +1,235 @@
+//! One frame, end to end: strips in row order, tiles with overlap, every
+//! requested detector on every tile, duplicates removed, then pixel to world.
+
+use opencv::core::{Mat, CV_8UC1};
+
+use super::detect::{build_detectors, DetectError, Detection, DetectorConfig};
+use super::georef::{TargetCrs, Transformer, WGS84};
+use super::raster::{RasterError, RasterFrame};
+use super::tiles::TileGrid;
+use super::{dedup, memory};
+
+/// Default tile side: large enough that per-tile overhead is small, small
+/// enough that a strip of an 8000 px wide frame stays at 16 MB.
+pub const DEFAULT_TILE_SIZE: usize = 2048;
+
+/// Default largest target side in pixels; the tile overlap is derived from it.
+pub const DEFAULT_MAX_TARGET_PX: usize = 200;
+
+/// A target within this many pixels of the frame border may be cut off.
+const EDGE_MARGIN_PX: f64 = 2.0;
+
+/// Settings for processing a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameOptions {
+    pub detector: DetectorConfig,
+    pub tile_size: usize,
+    /// Largest target side expected, in pixels; tiles overlap by more.
+    pub max_target_px: usize,
+    /// The CRS world coordinates are reported in; validated beforehand.
+    pub crs: TargetCrs,
+}
+
+impl FrameOptions {
+    /// Overlap between neighbouring tiles: the largest target plus a margin
+    /// for the refinement window, so any target is whole in some tile.
+    pub fn overlap(&self) -> usize {
+        (self.max_target_px + self.max_target_px / 4 + 8).min(self.tile_size / 2)
+    }
+}
+
+/// A detection placed in the world.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Target {
+    pub detection: Detection,
+    /// The target touches the frame border and may be cut off.
+    pub at_edge: bool,
+    /// Position in the requested CRS (x = easting/longitude).
+    pub world: Option<(f64, f64)>,
+    /// WGS84 longitude, latitude for GeoJSON.
+    pub lonlat: Option<(f64, f64)>,
+}
+
+/// Everything found in one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameResult {
+    /// The frame's name in outputs (path relative to the input given).
+    pub image: String,
+    pub width: usize,
+    pub height: usize,
+    /// Sorted by type, id, y, x.
+    pub targets: Vec<Target>,
+    /// Conditions worth telling the user that did not stop the frame.
+    pub warnings: Vec<String>,
+    pub tiles: usize,
+}
+
+/// Why a frame produced no result.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameError {
+    #[error(transparent)]
+    Raster(#[from] RasterError),
+    #[error(transparent)]
+    Detect(#[from] DetectError),
+    #[error(transparent)]
+    TooLarge(#[from] memory::TooLarge),
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+    #[error("canceled")]
+    Canceled,
+}
+
+/// What a caller learns while a frame runs, and how it can stop it.
+pub trait FrameObserver {
+    /// Called after each tile.
+    fn tile_done(&self, _done: usize, _total: usize) {}
+    /// Checked before each tile: true stops the frame with `Canceled`.
+    fn should_stop(&self) -> bool {
+        false
+    }
+}
+
+/// An observer that watches nothing.
+pub struct NoObserver;
+impl FrameObserver for NoObserver {}
+
+/// Runs detection over an opened frame and georeferences the results.
+pub fn detect_frame(
+    mut frame: RasterFrame,
+    image: &str,
+    options: &FrameOptions,
+    transformer: &mut Transformer,
+    observer: &dyn FrameObserver,
+) -> Result<FrameResult, FrameError> {
+    let header = frame.header().clone();
+    let (w, h) = (header.width, header.height);
+    let grid = TileGrid::new(w, h, options.tile_size, options.overlap());
+    let mut detectors = build_detectors(&options.detector)?;
+    frame.prepare_stretch()?;
+
+    let mut strip = vec![0u8; w * grid.tile_h];
+    let mut found: Vec<Detection> = Vec::new();
+    let mut done = 0;
+    for (row, &y0) in grid.ys.iter().enumerate() {
+        // Keep the rows this strip shares with the previous one and read only
+        // the new ones, so the file is read strictly top to bottom.
+        let kept_rows = if row == 0 {
+            0
+        } else {
+            grid.ys[row - 1] + grid.tile_h - y0
+        };
+        if kept_rows > 0 {
+            strip.copy_within((grid.tile_h - kept_rows) * w.., 0);
+        }
+        frame.read_rows(&mut strip[kept_rows * w..])?;
+        for (col, &x0) in grid.xs.iter().enumerate() {
+            if observer.should_stop() {
+                return Err(FrameError::Canceled);
+            }
+            let tile = tile_view(&strip, w, x0, grid.tile_w, grid.tile_h)?;
+            let seams = grid.seams(col, row);
+            for detector in detectors.iter_mut() {
+                found.extend(detector.detect(&tile, (x0, y0), seams)?);
+            }
+            drop(tile);
+            done += 1;
+            observer.tile_done(done, grid.count());
+        }
+    }
+    drop(strip);
+    dedup::remove_duplicates(&mut found);
+
+    let mut warnings = Vec::new();
+    let (world, lonlat) = georeference(&header, &found, &options.crs, transformer, &mut warnings);
+    let targets = found
+        .into_iter()
+        .enumerate()
+        .map(|(i, d)| Target {
+            at_edge: touches_edge(&d, w, h),
+            world: world.as_ref().map(|v| v[i]),
+            lonlat: lonlat.as_ref().map(|v| v[i]),
+            detection: d,
+        })
+        .collect();
+    Ok(FrameResult {
+        image: image.to_string(),
+        width: w,
+        height: h,
+        targets,
+        warnings,
+        tiles: grid.count(),
+    })
+}
+
+/// A Mat header over columns `x0..x0 + tile_w` of the grey strip, no copy.
+fn tile_view(
+    strip: &[u8],
+    w: usize,
+    x0: usize,
+    tile_w: usize,
+    tile_h: usize,
+) -> opencv::Result<Mat> {
+    assert!(
+        x0 + tile_w <= w && tile_h * w <= strip.len(),
+        "tile inside strip"
+    );
+    // SAFETY: the header addresses tile_h rows of tile_w bytes with stride w,
+    // all inside `strip` (asserted above). Detectors only read it, and the
+    // caller drops it before `strip` is next written.
+    unsafe {
+        Mat::new_rows_cols_with_data_unsafe(
+            tile_h as i32,
+            tile_w as i32,
+            CV_8UC1,
+            strip.as_ptr().add(x0) as *mut std::ffi::c_void,
+            w,
+        )
+    }
+}
+
+type Points = Option<Vec<(f64, f64)>>;
+
+/// World and WGS84 positions of the detections' centres, or a warning saying
+/// why there are none.
+fn georeference(
+    header: &super::raster::FrameHeader,
+    found: &[Detection],
+    crs: &TargetCrs,
+    transformer: &mut Transformer,
+    warnings: &mut Vec<String>,
+) -> (Points, Points) {
+    let Some(geo) = &header.georeference else {
+        let why = header
+            .georeference_note
+            .as_deref()
+            .unwrap_or("frame has no georeference");
+        warnings.push(format!("{why}; world coordinates left empty"));
+        return (None, None);
+    };
+    let native: Vec<(f64, f64)> = found
+        .iter()
+        .map(|d| geo.pixel_to_raster_crs(d.center.0, d.center.1))
+        .collect();
+    let mut world = native.clone();
+    let mut lonlat = native;
+    let result = transformer
+        .transform(&geo.crs, &crs.name, &mut world)
+        .and_then(|_| transformer.transform(&geo.crs, WGS84, &mut lonlat));
+    match result {
+        Ok(()) => (Some(world), Some(lonlat)),
+        Err(e) => {
+            warnings.push(format!("{e}; world coordinates left empty"));
+            (None, None)
+        }
+    }
+}
+
+fn touches_edge(d: &Detection, w: usize, h: usize) -> bool {
+    let (maxx, maxy) = (
+        w as f64 - 1.0 - EDGE_MARGIN_PX,
+        h as f64 - 1.0 - EDGE_MARGIN_PX,
+    );
+    d.corners
+        .iter()
+        .any(|&(x, y)| x < EDGE_MARGIN_PX || y < EDGE_MARGIN_PX || x > maxx || y > maxy)
+}

@@ -1,0 +1,377 @@
+//! Scene rendering on a float grey canvas (0 = black, 1 = white).
+
+use crate::pipeline::detect::geometry::{self, Pt};
+use crate::pipeline::detect::{marker_bits, MarkerType};
+
+use super::Rng;
+
+/// Subsamples per pixel side when painting shapes: 8x8 = 64 samples keeps
+/// the area-coverage error of an edge under 1/64 of a pixel.
+const SUPERSAMPLE: usize = 8;
+/// Printed target paper: white and black reflectance.
+const PAPER_WHITE: f32 = 0.92;
+const PAPER_BLACK: f32 = 0.07;
+
+/// A grey image, row-major, values in [0, 1].
+#[derive(Debug, Clone)]
+pub struct GreyImage {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+}
+
+/// One marker to place.
+#[derive(Debug, Clone)]
+pub struct MarkerSpec {
+    pub marker_type: MarkerType,
+    /// AprilTag family or ArUco dictionary name.
+    pub dictionary: String,
+    pub id: u32,
+    /// Centre in pixels (before perspective jitter of the corners).
+    pub center: Pt,
+    /// Side of the black outer border, in pixels.
+    pub side_px: f64,
+    pub rotation_deg: f64,
+    /// Corners are moved by up to this fraction of the side: mild perspective.
+    pub perspective: f64,
+}
+
+/// Look-alike objects that are not targets.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Clutter {
+    /// Dark squares with light insides and light squares (windows, panels).
+    pub squares: usize,
+    /// Discs and rings (manholes, tanks).
+    pub circles: usize,
+    /// Long bright bars (road markings).
+    pub stripes: usize,
+}
+
+/// A frame to render.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    pub width: usize,
+    pub height: usize,
+    pub seed: u64,
+    /// Gaussian blur applied to the whole frame, in pixels.
+    pub blur_sigma: f64,
+    /// Gaussian noise, in 8-bit grey levels.
+    pub noise_sigma: f64,
+    /// Left-to-right brightness ramp: multiplies by 1-g/2 .. 1+g/2.
+    pub gradient: f64,
+    /// Shadow bands (intensity x 0.55) crossing the frame.
+    pub shadows: usize,
+    pub clutter: Clutter,
+    pub markers: Vec<MarkerSpec>,
+}
+
+/// Where a marker really is.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Truth {
+    pub marker_type: MarkerType,
+    pub id: u32,
+    /// Image of the marker's centre under its homography.
+    pub center: Pt,
+    /// Outer black-border corners, marker order.
+    pub corners: [Pt; 4],
+    pub side_px: f64,
+}
+
+/// Renders `scene`; returns the image and the markers' truth.
+pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
+    let mut rng = Rng::new(scene.seed);
+    let mut img = GreyImage {
+        width: scene.width,
+        height: scene.height,
+        data: vec![0.0; scene.width * scene.height],
+    };
+    ground_texture(&mut img, &mut rng);
+    clutter(&mut img, &scene.clutter, &mut rng);
+    let mut truths = Vec::with_capacity(scene.markers.len());
+    for spec in &scene.markers {
+        truths.push(place_marker(&mut img, spec, &mut rng)?);
+    }
+    for _ in 0..scene.shadows {
+        shadow(&mut img, &mut rng);
+    }
+    if scene.gradient != 0.0 {
+        let w = img.width as f64;
+        for (i, v) in img.data.iter_mut().enumerate() {
+            let x = (i % img.width) as f64;
+            *v *= (1.0 - scene.gradient / 2.0 + scene.gradient * x / w) as f32;
+        }
+    }
+    if scene.blur_sigma > 0.0 {
+        gaussian_blur(&mut img, scene.blur_sigma);
+    }
+    if scene.noise_sigma > 0.0 {
+        let s = (scene.noise_sigma / 255.0) as f32;
+        for v in img.data.iter_mut() {
+            *v += s * rng.normal() as f32;
+        }
+    }
+    for v in img.data.iter_mut() {
+        *v = v.clamp(0.0, 1.0);
+    }
+    Ok((img, truths))
+}
+
+/// Soil and grass: two octaves of value noise plus grain.
+fn ground_texture(img: &mut GreyImage, rng: &mut Rng) {
+    let coarse = ValueNoise::new(img.width, img.height, 96.0, rng);
+    let fine = ValueNoise::new(img.width, img.height, 7.0, rng);
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let v = 0.40 + 0.22 * (coarse.at(x, y) - 0.5) + 0.12 * (fine.at(x, y) - 0.5);
+            img.data[y * img.width + x] = v as f32;
+        }
+    }
+}
+
+/// Random values on a grid, bilinearly interpolated.
+struct ValueNoise {
+    cols: usize,
+    cell: f64,
+    values: Vec<f64>,
+}
+
+impl ValueNoise {
+    fn new(w: usize, h: usize, cell: f64, rng: &mut Rng) -> ValueNoise {
+        let cols = (w as f64 / cell) as usize + 2;
+        let rows = (h as f64 / cell) as usize + 2;
+        ValueNoise {
+            cols,
+            cell,
+            values: (0..cols * rows).map(|_| rng.uniform()).collect(),
+        }
+    }
+    fn at(&self, x: usize, y: usize) -> f64 {
+        let (fx, fy) = (x as f64 / self.cell, y as f64 / self.cell);
+        let (ix, iy) = (fx as usize, fy as usize);
+        let (tx, ty) = (fx - ix as f64, fy - iy as f64);
+        let v = |c: usize, r: usize| self.values[r * self.cols + c];
+        let top = v(ix, iy) * (1.0 - tx) + v(ix + 1, iy) * tx;
+        let bottom = v(ix, iy + 1) * (1.0 - tx) + v(ix + 1, iy + 1) * tx;
+        top * (1.0 - ty) + bottom * ty
+    }
+}
+
+/// Paints a shape over `bbox` with area anti-aliasing: `shade(x, y)` gives
+/// the shape's value at an image point, or None outside the shape.
+fn paint(img: &mut GreyImage, bbox: (f64, f64, f64, f64), shade: impl Fn(f64, f64) -> Option<f32>) {
+    let x0 = (bbox.0.floor() as i64).max(0) as usize;
+    let y0 = (bbox.1.floor() as i64).max(0) as usize;
+    let x1 = ((bbox.2.ceil() as i64).max(0) as usize).min(img.width - 1);
+    let y1 = ((bbox.3.ceil() as i64).max(0) as usize).min(img.height - 1);
+    let n = SUPERSAMPLE;
+    let step = 1.0 / n as f64;
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let (mut sum, mut hits) = (0.0f32, 0usize);
+            for sy in 0..n {
+                for sx in 0..n {
+                    let px = x as f64 - 0.5 + (sx as f64 + 0.5) * step;
+                    let py = y as f64 - 0.5 + (sy as f64 + 0.5) * step;
+                    if let Some(v) = shade(px, py) {
+                        sum += v;
+                        hits += 1;
+                    }
+                }
+            }
+            if hits > 0 {
+                let bg = img.data[y * img.width + x];
+                let total = (n * n) as f32;
+                img.data[y * img.width + x] = bg * (total - hits as f32) / total + sum / total;
+            }
+        }
+    }
+}
+
+fn bbox_of(points: &[Pt]) -> (f64, f64, f64, f64) {
+    points
+        .iter()
+        .fold((f64::MAX, f64::MAX, f64::MIN, f64::MIN), |b, p| {
+            (b.0.min(p.0), b.1.min(p.1), b.2.max(p.0), b.3.max(p.1))
+        })
+}
+
+fn invert(h: &[f64; 9]) -> [f64; 9] {
+    let [a, b, c, d, e, f, g, hh, i] = *h;
+    let det = a * (e * i - f * hh) - b * (d * i - f * g) + c * (d * hh - e * g);
+    [
+        (e * i - f * hh) / det,
+        (c * hh - b * i) / det,
+        (b * f - c * e) / det,
+        (f * g - d * i) / det,
+        (a * i - c * g) / det,
+        (c * d - a * f) / det,
+        (d * hh - e * g) / det,
+        (b * g - a * hh) / det,
+        (a * e - b * d) / det,
+    ]
+}
+
+/// The marker's outer-border corners for its centre, size, rotation and
+/// perspective jitter.
+fn marker_corners(spec: &MarkerSpec, rng: &mut Rng) -> [Pt; 4] {
+    let (s, c) = spec.rotation_deg.to_radians().sin_cos();
+    let half = spec.side_px / 2.0;
+    let unit = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)];
+    unit.map(|(u, v)| {
+        let jx = rng.range(-1.0, 1.0) * spec.perspective * spec.side_px;
+        let jy = rng.range(-1.0, 1.0) * spec.perspective * spec.side_px;
+        let (x, y) = (u * half, v * half);
+        (
+            spec.center.0 + c * x - s * y + jx,
+            spec.center.1 + s * x + c * y + jy,
+        )
+    })
+}
+
+/// Renders a marker with a one-cell white quiet zone, as printed targets have.
+fn place_marker(img: &mut GreyImage, spec: &MarkerSpec, rng: &mut Rng) -> Result<Truth, String> {
+    let bits = marker_bits(spec.marker_type, &spec.dictionary, spec.id)?;
+    let n = bits.len();
+    let corners = marker_corners(spec, rng);
+    let h = geometry::square_to_quad(&corners);
+    let inv = invert(&h);
+    let q = 1.0 / n as f64;
+    let outer = [(-q, -q), (1.0 + q, -q), (1.0 + q, 1.0 + q), (-q, 1.0 + q)]
+        .map(|p| geometry::apply(&h, p));
+    paint(img, bbox_of(&outer), |x, y| {
+        let (u, v) = geometry::apply(&inv, (x, y));
+        if !(-q..1.0 + q).contains(&u) || !(-q..1.0 + q).contains(&v) {
+            return None;
+        }
+        if !(0.0..1.0).contains(&u) || !(0.0..1.0).contains(&v) {
+            return Some(PAPER_WHITE);
+        }
+        let (col, row) = ((u * n as f64) as usize, (v * n as f64) as usize);
+        Some(if bits[row.min(n - 1)][col.min(n - 1)] {
+            PAPER_WHITE
+        } else {
+            PAPER_BLACK
+        })
+    });
+    Ok(Truth {
+        marker_type: spec.marker_type,
+        id: spec.id,
+        center: geometry::apply(&h, (0.5, 0.5)),
+        corners,
+        side_px: geometry::mean_side(&corners),
+    })
+}
+
+fn clutter(img: &mut GreyImage, clutter: &Clutter, rng: &mut Rng) {
+    let (w, h) = (img.width as f64, img.height as f64);
+    for _ in 0..clutter.squares {
+        let side = rng.range(20.0, 90.0);
+        let c = (rng.range(0.0, w), rng.range(0.0, h));
+        let angle = rng.range(0.0, std::f64::consts::PI);
+        let (dark, light) = if rng.uniform() < 0.5 {
+            (0.08f32, 0.85f32)
+        } else {
+            (0.85, 0.15)
+        };
+        let inner = rng.range(0.3, 0.7);
+        let (s, co) = angle.sin_cos();
+        let r = side * 0.75;
+        paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+            let (dx, dy) = (x - c.0, y - c.1);
+            let (u, v) = ((co * dx + s * dy) / side, (-s * dx + co * dy) / side);
+            if u.abs() > 0.5 || v.abs() > 0.5 {
+                None
+            } else if u.abs() < inner / 2.0 && v.abs() < inner / 2.0 {
+                Some(light)
+            } else {
+                Some(dark)
+            }
+        });
+    }
+    for _ in 0..clutter.circles {
+        let radius = rng.range(10.0, 45.0);
+        let c = (rng.range(0.0, w), rng.range(0.0, h));
+        let ring = rng.uniform() < 0.5;
+        let (a, b) = if rng.uniform() < 0.5 {
+            (0.1f32, 0.9f32)
+        } else {
+            (0.9, 0.1)
+        };
+        paint(
+            img,
+            (c.0 - radius, c.1 - radius, c.0 + radius, c.1 + radius),
+            |x, y| {
+                let d = (x - c.0).hypot(y - c.1) / radius;
+                if d > 1.0 {
+                    None
+                } else if ring && d < 0.5 {
+                    Some(b)
+                } else {
+                    Some(a)
+                }
+            },
+        );
+    }
+    for _ in 0..clutter.stripes {
+        let (len, width) = (rng.range(150.0, 600.0), rng.range(8.0, 20.0));
+        let c = (rng.range(0.0, w), rng.range(0.0, h));
+        let (s, co) = rng.range(0.0, std::f64::consts::PI).sin_cos();
+        let r = len / 2.0 + width;
+        paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+            let (dx, dy) = (x - c.0, y - c.1);
+            let (u, v) = (co * dx + s * dy, -s * dx + co * dy);
+            (u.abs() <= len / 2.0 && v.abs() <= width / 2.0).then_some(0.88)
+        });
+    }
+}
+
+/// A straight-edged shadow band across the frame.
+fn shadow(img: &mut GreyImage, rng: &mut Rng) {
+    let (w, h) = (img.width as f64, img.height as f64);
+    let c = (rng.range(0.0, w), rng.range(0.0, h));
+    let (s, co) = rng.range(0.0, std::f64::consts::PI).sin_cos();
+    let half = rng.range(40.0, 300.0);
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let d = -s * (x as f64 - c.0) + co * (y as f64 - c.1);
+            // Penumbra of one pixel: coverage of the band edge.
+            let cover = (half + 0.5 - d.abs()).clamp(0.0, 1.0) as f32;
+            if cover > 0.0 {
+                img.data[y * img.width + x] *= 1.0 - 0.45 * cover;
+            }
+        }
+    }
+}
+
+/// Separable Gaussian blur, edges clamped.
+fn gaussian_blur(img: &mut GreyImage, sigma: f64) {
+    let radius = (3.0 * sigma).ceil() as i64;
+    let kernel: Vec<f32> = (-radius..=radius)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let norm: f32 = kernel.iter().sum();
+    let kernel: Vec<f32> = kernel.iter().map(|k| k / norm).collect();
+    let (w, h) = (img.width as i64, img.height as i64);
+    let mut tmp = vec![0f32; img.data.len()];
+    for y in 0..h {
+        let row = &img.data[(y * w) as usize..((y + 1) * w) as usize];
+        for x in 0..w {
+            let mut acc = 0.0;
+            for (k, kv) in kernel.iter().enumerate() {
+                let xx = (x + k as i64 - radius).clamp(0, w - 1);
+                acc += kv * row[xx as usize];
+            }
+            tmp[(y * w + x) as usize] = acc;
+        }
+    }
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = 0.0;
+            for (k, kv) in kernel.iter().enumerate() {
+                let yy = (y + k as i64 - radius).clamp(0, h - 1);
+                acc += kv * tmp[(yy * w + x) as usize];
+            }
+            img.data[(y * w + x) as usize] = acc;
+        }
+    }
+}

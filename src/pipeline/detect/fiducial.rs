@@ -9,11 +9,11 @@ use std::fmt;
 use std::str::FromStr;
 
 use opencv::aruco::{self, DetectorParameters, Dictionary, PREDEFINED_DICTIONARY_NAME as P};
-use opencv::core::{self, Mat, Point2f, Ptr, Size, TermCriteria, Vector};
-use opencv::imgproc;
+use opencv::core::{self, Mat, Point2f, Ptr, Vector};
 use opencv::prelude::*;
 
 use super::geometry::{self, Pt};
+use super::refine::{self, GreyView};
 use super::{DetectError, Detection, Detector, MarkerType, Refinement};
 
 /// ArUco dictionaries by the names users know them under.
@@ -118,7 +118,8 @@ named_dictionary!(
 
 /// Largest plausible corner move during refinement, as a fraction of a
 /// marker cell: raw corners come from a polygon fitted to the thresholded
-/// contour and are within about a pixel of the truth.
+/// contour and are within about a pixel of the truth; a larger move means
+/// the edge fit latched onto something else (occlusion, clutter).
 const MAX_SHIFT_CELLS: f64 = 0.6;
 /// ... and never less than this many pixels, so tiny markers keep some slack.
 const MIN_SHIFT_LIMIT_PX: f64 = 1.5;
@@ -162,51 +163,31 @@ impl FiducialDetector {
         })
     }
 
-    /// Refines the four outer corners with `cornerSubPix`, the search window
-    /// scaled to one marker cell (the black border's width), and rejects any
-    /// move larger than [`MAX_SHIFT_CELLS`].
-    fn refine_corners(
-        &self,
-        tile: &Mat,
-        raw: &[Pt; 4],
-    ) -> opencv::Result<([Pt; 4], f64, Refinement)> {
-        let cell = geometry::mean_side(raw) / (self.bits + 2) as f64;
-        let half = (cell * 0.9).floor().clamp(2.0, 20.0) as i32;
-        let mut pts: Vector<Point2f> = raw
-            .iter()
-            .map(|&(x, y)| Point2f::new(x as f32, y as f32))
-            .collect();
-        let criteria =
-            TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 50, 0.001)?;
-        imgproc::corner_sub_pix(
-            tile,
-            &mut pts,
-            Size::new(half, half),
-            Size::new(-1, -1),
-            criteria,
-        )?;
+    /// Refines the four outer corners by fitting lines to the outer edges
+    /// (see `refine`), and rejects the result when a corner moves more than
+    /// the tolerance: the pixel-level corners are then kept and flagged.
+    fn refine_corners(&self, img: &GreyView, raw: &[Pt; 4]) -> ([Pt; 4], f64, Refinement) {
+        let cells = (self.bits + 2) as f64;
+        let cell = geometry::mean_side(raw) / cells;
         let limit = self
             .max_shift_px
             .unwrap_or((cell * MAX_SHIFT_CELLS).max(MIN_SHIFT_LIMIT_PX));
-        let mut out = *raw;
-        let mut max_shift: f64 = 0.0;
-        let mut refinement = Refinement::Refined;
-        for (i, p) in pts.iter().enumerate() {
-            let refined = (p.x as f64, p.y as f64);
-            let shift = geometry::dist(refined, raw[i]);
-            max_shift = max_shift.max(shift);
-            if shift <= limit && shift.is_finite() {
-                out[i] = refined;
-            } else {
-                refinement = Refinement::Rejected;
-            }
+        let Some(refined) = refine::refine_square(img, raw, cells) else {
+            return (*raw, 0.0, Refinement::Rejected);
+        };
+        let shift = (0..4)
+            .map(|i| geometry::dist(refined[i], raw[i]))
+            .fold(0.0, f64::max);
+        if shift.is_finite() && shift <= limit {
+            (refined, shift, Refinement::Refined)
+        } else {
+            (*raw, shift, Refinement::Rejected)
         }
-        Ok((out, max_shift, refinement))
     }
 
     /// Reads every cell through the refined quad and compares the data bits
     /// with the dictionary's code for `id`: (bit errors, decision margin).
-    fn read_back(&self, tile: &Mat, corners: &[Pt; 4], id: i32) -> opencv::Result<(u32, f64)> {
+    fn read_back(&self, img: &GreyView, corners: &[Pt; 4], id: i32) -> opencv::Result<(u32, f64)> {
         let n = (self.bits + 2) as usize;
         let h = geometry::square_to_quad(corners);
         let mut cells = vec![0f64; n * n];
@@ -218,7 +199,8 @@ impl FiducialDetector {
                 for sx in [-0.25, 0.0, 0.25] {
                     let u = (col as f64 + 0.5 + sx) / n as f64;
                     let w = (row as f64 + 0.5 + sy) / n as f64;
-                    sum += bilinear(tile, geometry::apply(&h, (u, w)))?;
+                    let (x, y) = geometry::apply(&h, (u, w));
+                    sum += img.sample(x, y).unwrap_or(0.0);
                 }
             }
             *v = sum / 9.0;
@@ -299,14 +281,15 @@ impl Detector for FiducialDetector {
             &mut rejected,
         )
         .map_err(err)?;
+        let img = grey_view(tile).map_err(err)?;
         let mut out = Vec::with_capacity(ids.len());
         for (quad, id) in corners.iter().zip(ids.iter()) {
             let raw: [Pt; 4] = std::array::from_fn(|i| {
                 let p = quad.get(i).expect("aruco returns four corners");
                 (p.x as f64, p.y as f64)
             });
-            let (refined, shift, refinement) = self.refine_corners(tile, &raw).map_err(err)?;
-            let (bit_errors, margin) = self.read_back(tile, &refined, id).map_err(err)?;
+            let (refined, shift, refinement) = self.refine_corners(&img, &raw);
+            let (bit_errors, margin) = self.read_back(&img, &refined, id).map_err(err)?;
             let centre = geometry::diagonal_intersection(&refined);
             let (ox, oy) = (origin.0 as f64, origin.1 as f64);
             out.push(Detection {
@@ -326,19 +309,25 @@ impl Detector for FiducialDetector {
     }
 }
 
-/// Bilinear grey value at a subpixel position (OpenCV pixel centres),
-/// clamped to the tile.
-fn bilinear(img: &Mat, p: Pt) -> opencv::Result<f64> {
-    let (w, h) = (img.cols() - 1, img.rows() - 1);
-    let x = p.0.clamp(0.0, w as f64);
-    let y = p.1.clamp(0.0, h as f64);
-    let (x0, y0) = (x.floor() as i32, y.floor() as i32);
-    let (x1, y1) = ((x0 + 1).min(w), (y0 + 1).min(h));
-    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-    let v = |xx: i32, yy: i32| img.at_2d::<u8>(yy, xx).map(|v| *v as f64);
-    let top = v(x0, y0)? * (1.0 - fx) + v(x1, y0)? * fx;
-    let bottom = v(x0, y1)? * (1.0 - fx) + v(x1, y1)? * fx;
-    Ok(top * (1.0 - fy) + bottom * fy)
+/// Borrows an 8-bit single-channel Mat (possibly a view with a stride).
+fn grey_view(tile: &Mat) -> opencv::Result<GreyView<'_>> {
+    if tile.typ() != core::CV_8UC1 {
+        return Err(opencv::Error::new(
+            core::StsBadArg,
+            "tile must be 8-bit grey",
+        ));
+    }
+    let (w, h) = (tile.cols() as usize, tile.rows() as usize);
+    let stride = tile.step1(0)?;
+    // SAFETY: an 8-bit Mat of h rows with row stride `stride` addresses
+    // (h - 1) * stride + w bytes from its data pointer; the view borrows `tile`.
+    let data = unsafe { std::slice::from_raw_parts(tile.data(), (h - 1) * stride + w) };
+    Ok(GreyView {
+        data,
+        width: w,
+        height: h,
+        stride,
+    })
 }
 
 /// The cells of marker `id` including its one-cell black border, true for

@@ -6,6 +6,7 @@
 
 mod fiducial;
 pub mod geometry;
+pub mod refine;
 
 use std::fmt;
 use std::str::FromStr;

@@ -1,0 +1,5 @@
+//! Integration tests: one binary, frames rendered with exact truth.
+
+mod support;
+
+mod accuracy;

@@ -124,6 +124,9 @@ const MAX_SHIFT_CELLS: f64 = 0.6;
 /// ... and never less than this many pixels, so tiny markers keep some slack.
 const MIN_SHIFT_LIMIT_PX: f64 = 1.5;
 
+/// See `FiducialDetector::new`.
+const MIN_MARKER_DISTANCE_RATE: f64 = 0.02;
+
 /// Detector for one AprilTag family or ArUco dictionary.
 pub struct FiducialDetector {
     marker_type: MarkerType,
@@ -153,6 +156,13 @@ impl FiducialDetector {
         params.set_adaptive_thresh_win_size_step(10);
         params.set_polygonal_approx_accuracy_rate(0.05);
         params.set_min_corner_distance_rate(0.05);
+        // A printed tag's white quiet zone forms a second square contour one
+        // cell outside the black border. At the default rate (0.05) OpenCV
+        // 4.6 groups the two as "too close" and may keep the outer one, whose
+        // border reads white: the tag is lost (3 of 36 in a test frame). One
+        // cell is >= 0.15 of the side for every dictionary, far above 0.02
+        // of the perimeter (0.08 of the side).
+        params.set_min_marker_distance_rate(MIN_MARKER_DISTANCE_RATE);
         Ok(FiducialDetector {
             marker_type,
             dictionary,

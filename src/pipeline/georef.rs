@@ -58,14 +58,14 @@ impl TargetCrs {
         // every string PROJ returns is copied before destruction.
         unsafe {
             let ctx = proj_sys::proj_context_create();
+            // PROJ logs failures to stderr itself; the error value says it.
+            proj_sys::proj_log_level(ctx, proj_sys::PJ_LOG_LEVEL_PJ_LOG_NONE);
             let pj = proj_sys::proj_create(ctx, c_def.as_ptr());
             if pj.is_null() {
-                let errno = proj_sys::proj_context_errno(ctx);
-                let reason = CStr::from_ptr(proj_sys::proj_context_errno_string(ctx, errno))
-                    .to_string_lossy()
-                    .into_owned();
                 proj_sys::proj_context_destroy(ctx);
-                return Err(invalid(&reason));
+                return Err(invalid(
+                    "not a CRS known to PROJ (expected EPSG:n, WKT, PROJJSON or a PROJ string)",
+                ));
             }
             use proj_sys::*;
             let ty = proj_get_type(pj);

@@ -3,3 +3,6 @@
 mod support;
 
 mod accuracy;
+mod cli;
+mod georef;
+mod tiling;

@@ -124,6 +124,14 @@ const MAX_SHIFT_CELLS: f64 = 0.6;
 /// ... and never less than this many pixels, so tiny markers keep some slack.
 const MIN_SHIFT_LIMIT_PX: f64 = 1.5;
 
+/// A candidate is dropped when both structural checks fail: its outer edges
+/// do not fit straight lines near the detected corners (refinement
+/// rejected) and its cells read closer to the black/white threshold than this
+/// fraction of the contrast. Clutter decoded as a 4x4 ArUco code failed both
+/// (corner shift 14.7 px, margin 0.05); real tags under partial shadow may
+/// read a low margin but their edges fit.
+const MIN_DECISION_MARGIN: f64 = 0.1;
+
 /// See `FiducialDetector::new`.
 const MIN_MARKER_DISTANCE_RATE: f64 = 0.02;
 
@@ -163,6 +171,10 @@ impl FiducialDetector {
         // cell is >= 0.15 of the side for every dictionary, far above 0.02
         // of the perimeter (0.08 of the side).
         params.set_min_marker_distance_rate(MIN_MARKER_DISTANCE_RATE);
+        // Small aerial tags have 4-7 px cells blurred by ~1 px: read each
+        // bit from the cell's centre only (default ignores the outer 13%),
+        // which also keeps a shadow edge across the tag from flipping bits.
+        params.set_perspective_remove_ignored_margin_per_cell(0.3);
         Ok(FiducialDetector {
             marker_type,
             dictionary,
@@ -300,6 +312,18 @@ impl Detector for FiducialDetector {
             });
             let (refined, shift, refinement) = self.refine_corners(&img, &raw);
             let (bit_errors, margin) = self.read_back(&img, &refined, id).map_err(err)?;
+            if margin < MIN_DECISION_MARGIN && refinement == Refinement::Rejected {
+                let (x, y) = (raw[0].0 + origin.0 as f64, raw[0].1 + origin.1 as f64);
+                tracing::debug!(
+                    id,
+                    margin,
+                    shift,
+                    x,
+                    y,
+                    "tag candidate dropped: edges and cells both fail"
+                );
+                continue;
+            }
             let centre = geometry::diagonal_intersection(&refined);
             let (ox, oy) = (origin.0 as f64, origin.1 as f64);
             out.push(Detection {

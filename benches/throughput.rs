@@ -1,1 +1,175 @@
-fn main() {}
+//! Throughput, peak memory and accuracy of `gcp-tagger detect` on generated
+//! flights: 4000x3000 JPEG frames and 8000x6000 JPEG frames.
+//!
+//! Run: `cargo bench --bench throughput` (frames are generated once into
+//! the target folder and reused). Under `cargo test` it does nothing.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use gcp_tagger::synth::{FileKind, FlightSpec};
+
+struct Set {
+    name: &'static str,
+    spec: FlightSpec,
+}
+
+fn main() {
+    if !std::env::args().any(|a| a == "--bench") {
+        println!("throughput: run with `cargo bench --bench throughput`");
+        return;
+    }
+    let root = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("bench-frames");
+    let sets = [
+        Set {
+            name: "4000x3000 JPEG",
+            spec: FlightSpec {
+                frames: 12,
+                width: 4000,
+                height: 3000,
+                markers: 8,
+                kind: FileKind::Jpeg,
+                seed: 11,
+            },
+        },
+        Set {
+            name: "8000x6000 JPEG",
+            spec: FlightSpec {
+                frames: 3,
+                width: 8000,
+                height: 6000,
+                markers: 12,
+                kind: FileKind::Jpeg,
+                seed: 12,
+            },
+        },
+    ];
+    println!(
+        "| frames | threads | MP/s | peak RSS MiB | recall | centre error median px | p95 px |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for set in &sets {
+        let dir = root.join(format!(
+            "{}x{}-{}",
+            set.spec.width, set.spec.height, set.spec.frames
+        ));
+        if !dir.join("truth.csv").exists() {
+            eprintln!("generating {} into {}", set.name, dir.display());
+            generate(&dir, &set.spec);
+        }
+        for threads in [1, 2] {
+            let out = dir.with_extension(format!("t{threads}.csv"));
+            let (seconds, rss_kib) = run_detect(&dir, &out, threads);
+            let mp = (set.spec.width * set.spec.height * set.spec.frames) as f64 / 1e6;
+            let (recall, median, p95) = accuracy(&dir.join("truth.csv"), &out);
+            println!(
+                "| {} x{} | {threads} | {:.1} | {:.0} | {:.1}% | {median:.3} | {p95:.3} |",
+                set.name,
+                set.spec.frames,
+                mp / seconds,
+                rss_kib as f64 / 1024.0,
+                recall * 100.0
+            );
+        }
+    }
+}
+
+/// Renders frames in a separate process: Linux carries a process's peak RSS
+/// across fork+exec into its children's rusage, so rendering 8000x6000
+/// frames in this process would inflate every figure measured below.
+fn generate(dir: &Path, spec: &FlightSpec) {
+    let status = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .arg("sample")
+        .arg("--out")
+        .arg(dir)
+        .args([
+            "--frames",
+            &spec.frames.to_string(),
+            "--width",
+            &spec.width.to_string(),
+        ])
+        .args([
+            "--height",
+            &spec.height.to_string(),
+            "--markers",
+            &spec.markers.to_string(),
+        ])
+        .args([
+            "--kind",
+            &spec.kind.to_string(),
+            "--seed",
+            &spec.seed.to_string(),
+        ])
+        .status()
+        .expect("run gcp-tagger sample");
+    assert!(status.success(), "sample generation failed");
+}
+
+/// Runs the release binary at default settings; returns wall seconds and the
+/// child's peak RSS in KiB (from wait4's rusage).
+fn run_detect(dir: &Path, out: &Path, threads: usize) -> (f64, i64) {
+    let start = Instant::now();
+    let child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .arg("detect")
+        .arg(dir)
+        .args([
+            "--crs",
+            "EPSG:4326",
+            "--quiet",
+            "--threads",
+            &threads.to_string(),
+            "--output",
+        ])
+        .arg(out)
+        .spawn()
+        .expect("spawn gcp-tagger");
+    let mut status = 0;
+    // SAFETY: plain libc call on our own child's pid with valid out-pointers.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as i32, "wait4");
+    assert_eq!(status, 0, "detect failed");
+    (start.elapsed().as_secs_f64(), usage.ru_maxrss)
+}
+
+/// Recall and centre-error quantiles of `out` against `truth` (both CSV,
+/// matched by image and id, nearest centre).
+fn accuracy(truth: &Path, out: &Path) -> (f64, f64, f64) {
+    let read = |p: &Path| -> Vec<(String, String, f64, f64)> {
+        std::fs::read_to_string(p)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                (
+                    f[0].to_string(),
+                    f[2].to_string(),
+                    f[3].parse().unwrap(),
+                    f[4].parse().unwrap(),
+                )
+            })
+            .collect()
+    };
+    let mut found: HashMap<(String, String), Vec<(f64, f64)>> = HashMap::new();
+    for (img, id, x, y) in read(out) {
+        found.entry((img, id)).or_default().push((x, y));
+    }
+    let truth = read(truth);
+    let mut errors: Vec<f64> = truth
+        .iter()
+        .filter_map(|(img, id, x, y)| {
+            found
+                .get(&(img.clone(), id.clone()))?
+                .iter()
+                .map(|(fx, fy)| (fx - x).hypot(fy - y))
+                .filter(|d| *d < 5.0)
+                .reduce(f64::min)
+        })
+        .collect();
+    errors.sort_by(f64::total_cmp);
+    let q = |p: f64| errors[((errors.len() - 1) as f64 * p).round() as usize];
+    (errors.len() as f64 / truth.len() as f64, q(0.5), q(0.95))
+}

@@ -11,16 +11,17 @@ pub const MIB: u64 = 1 << 20;
 
 /// Resident memory of the process before any frame: code and data of
 /// OpenCV, GDAL and PROJ plus the GDAL block cache we allow
-/// ([`GDAL_CACHE_MIB`]). Measured with `cargo bench --bench throughput`
-/// (RSS after start-up was ~45 MiB); rounded up.
-pub const BASE_PROCESS_BYTES: u64 = 96 * MIB;
+/// ([`GDAL_CACHE_MIB`]). The benchmark measures 149 MiB peak for one
+/// worker on 4000x3000 frames whose estimated working set is ~50 MiB, so
+/// about 100 MiB is the process itself.
+pub const BASE_PROCESS_BYTES: u64 = 104 * MIB;
 
 /// GDAL's raster block cache. Strips are read full width, forward, in whole
 /// blocks, so the cache is never re-read from; keep it small.
 pub const GDAL_CACHE_MIB: u64 = 32;
 
 /// Working memory of the marker detector per tile pixel: OpenCV's aruco
-/// keeps one thresholded copy per adaptive-threshold window size (3 here)
+/// keeps one thresholded copy per adaptive-threshold window size (2 here)
 /// plus contours and candidate lists. 8 bytes/pixel covers it with margin.
 const DETECT_BYTES_PER_TILE_PIXEL: u64 = 8;
 

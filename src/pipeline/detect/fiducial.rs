@@ -159,9 +159,13 @@ impl FiducialDetector {
         // refinement (we refine with a window scaled to the marker below).
         params.set_min_distance_to_border(1);
         params.set_corner_refinement_method(aruco::CORNER_REFINE_NONE);
+        // Two adaptive-threshold passes (5 and 25 px windows) instead of
+        // three: each pass is a threshold plus a contour search over the tile,
+        // the bulk of detection time. Measured with `cargo bench`: 22.8 ->
+        // 33.0 MP/s on 4000x3000 JPEGs, recall and centre error unchanged.
         params.set_adaptive_thresh_win_size_min(5);
         params.set_adaptive_thresh_win_size_max(25);
-        params.set_adaptive_thresh_win_size_step(10);
+        params.set_adaptive_thresh_win_size_step(20);
         params.set_polygonal_approx_accuracy_rate(0.05);
         params.set_min_corner_distance_rate(0.05);
         // A printed tag's white quiet zone forms a second square contour one

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::{GeoSpec, SampleFormat};
+use gcp_tagger::synth::{sample_geo, SampleFormat};
 
 use crate::support::*;
 
@@ -24,10 +24,7 @@ fn stderr(o: &Output) -> String {
 /// A folder with two good frames (one georeferenced) and every kind of bad one.
 fn flight_with_bad_frames(dir: &Path) {
     let scene = grid_scene(1200, 900, 4, (36.0, 50.0), MarkerType::AprilTag, "36h11", 9);
-    let geo = GeoSpec {
-        geotransform: [500_000.0, 0.02, 0.0, 4_100_000.0, 0.0, -0.02],
-        epsg: 32611,
-    };
+    let geo = sample_geo(0);
     write_scene(dir, "good.tif", &scene, SampleFormat::GtiffRgb8, Some(&geo));
     let (jpeg, _) = write_scene(dir, "good.jpg", &scene, SampleFormat::Jpeg, None);
     let bytes = std::fs::read(&jpeg).unwrap();
@@ -190,17 +187,7 @@ fn output_bytes_do_not_depend_on_thread_count() {
             "36h11",
             50 + i,
         );
-        let geo = GeoSpec {
-            geotransform: [
-                500_000.0 + 40.0 * i as f64,
-                0.02,
-                0.0,
-                4_100_000.0,
-                0.0,
-                -0.02,
-            ],
-            epsg: 32611,
-        };
+        let geo = sample_geo(i as usize);
         write_scene(
             &frames,
             &format!("f{i}.tif"),

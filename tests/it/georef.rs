@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::Command;
 
 use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::{GeoSpec, SampleFormat};
+use gcp_tagger::synth::{sample_geo, GeoSpec, SampleFormat};
 
 use crate::support::*;
 
@@ -96,10 +96,7 @@ const MM_DEG: f64 = 1e-8;
 #[test]
 fn utm_geotiff_matches_gdaltransform_in_utm_and_wgs84() {
     let dir = tempfile::tempdir().unwrap();
-    let geo = GeoSpec {
-        geotransform: [500_000.0, 0.02, 0.0, 4_100_000.0, 0.0, -0.02],
-        epsg: 32611,
-    };
+    let geo = sample_geo(0);
     check_world(
         dir.path(),
         "utm.tif",
@@ -170,10 +167,7 @@ fn datum_shift_matches_gdaltransform() {
 #[test]
 fn sixteen_bit_four_band_geotiff() {
     let dir = tempfile::tempdir().unwrap();
-    let geo = GeoSpec {
-        geotransform: [500_000.0, 0.02, 0.0, 4_100_000.0, 0.0, -0.02],
-        epsg: 32611,
-    };
+    let geo = sample_geo(0);
     check_world(
         dir.path(),
         "ms16.tif",

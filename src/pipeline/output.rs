@@ -31,13 +31,6 @@ impl Format {
         let ext = path.extension()?.to_str()?.to_ascii_lowercase();
         ext.parse().ok()
     }
-
-    pub fn media_type(self) -> &'static str {
-        match self {
-            Format::Csv => "text/csv",
-            Format::GeoJson => "application/geo+json",
-        }
-    }
 }
 
 impl FromStr for Format {

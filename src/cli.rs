@@ -43,9 +43,9 @@ const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "tif", "tiff", "png"];
     about = "Finds ground control point targets in drone frames"
 )]
 pub struct Cli {
-    /// Log filter (tracing EnvFilter syntax), e.g. "info" or "gcp_tagger=debug".
-    #[arg(long, global = true, env = "GCP_TAGGER_LOG", default_value = "warn")]
-    pub log: String,
+    /// Log filter (tracing EnvFilter syntax), e.g. "info" or "gcp_tagger=debug" (default: info for serve, warn otherwise).
+    #[arg(long, global = true, env = "GCP_TAGGER_LOG")]
+    pub log: Option<String>,
     /// Log as JSON lines instead of text.
     #[arg(long, global = true, env = "GCP_TAGGER_LOG_JSON")]
     pub log_json: bool,
@@ -59,6 +59,10 @@ pub enum Command {
     Detect(DetectArgs),
     /// Render sample frames with known targets (and their truth as CSV).
     Sample(SampleArgs),
+    /// Run the HTTP service.
+    Serve(crate::config::ServeArgs),
+    /// Print the service's OpenAPI document (as committed in openapi/openapi.json).
+    Openapi,
 }
 
 #[derive(Args, Debug)]
@@ -161,25 +165,6 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
             ))
         })?,
     };
-    if args.tile_size < 256 {
-        return Err(usage(format!(
-            "--tile-size {} is below the 256 px minimum",
-            args.tile_size
-        )));
-    }
-    if args.max_target_px * 2 > args.tile_size {
-        return Err(usage(format!(
-            "--max-target-px {} must be at most half of --tile-size {}",
-            args.max_target_px, args.tile_size
-        )));
-    }
-    if let Some(t) = args.pixel_tolerance {
-        if !(t.is_finite() && t > 0.0) {
-            return Err(usage(format!(
-                "--pixel-tolerance must be a positive number of pixels, got {t}"
-            )));
-        }
-    }
     let max_ram_bytes = match args.max_ram_gb {
         Some(gb) if gb.is_finite() && gb > 0.0 => (gb * (1u64 << 30) as f64) as u64,
         Some(gb) => return Err(usage(format!("--max-ram-gb must be positive, got {gb}"))),
@@ -194,19 +179,21 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
     let mut modes = args.marker_type.clone();
     modes.sort();
     modes.dedup();
-    let options = BatchOptions {
-        frame: FrameOptions {
-            detector: DetectorConfig {
-                modes,
-                aruco_dictionary: args.dictionary,
-                apriltag_family: args.apriltag_family,
-                min_target_px: args.min_target_px,
-                max_refine_shift_px: args.pixel_tolerance,
-            },
-            tile_size: args.tile_size,
-            max_target_px: args.max_target_px,
-            crs: crs.clone(),
+    let frame = FrameOptions::new(
+        DetectorConfig {
+            modes,
+            aruco_dictionary: args.dictionary,
+            apriltag_family: args.apriltag_family,
+            min_target_px: args.min_target_px,
+            max_refine_shift_px: args.pixel_tolerance,
         },
+        args.tile_size,
+        args.max_target_px,
+        crs.clone(),
+    )
+    .map_err(|e| usage(cli_setting_message(&e)))?;
+    let options = BatchOptions {
+        frame,
         threads: args
             .threads
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
@@ -259,6 +246,15 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
     } else {
         exit::ALL_GOOD
     })
+}
+
+/// An invalid setting as the command line spells it (`--tile-size`).
+fn cli_setting_message(e: &crate::pipeline::frame::InvalidSetting) -> String {
+    let flag = match e.field {
+        "marker_types" => "marker-type".to_string(),
+        other => other.replace('_', "-"),
+    };
+    format!("--{flag} {}", e.message)
 }
 
 /// Files as given, and the image files inside folders (recursively, sorted),

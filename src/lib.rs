@@ -2,9 +2,20 @@
 //! reports their subpixel pixel positions and world coordinates.
 //!
 //! - [`pipeline`]: the synchronous detection pipeline (GDAL, OpenCV, PROJ).
+//! - [`jobs`]: job records, the durable store and queue, the worker pool.
+//! - [`storage`]: the data folder and the upload spool.
+//! - [`api`]: the HTTP API (axum), its errors and OpenAPI document.
+//! - [`server`] and [`config`]: `gcp-tagger serve`.
 //! - [`cli`]: the `gcp-tagger` command line.
+//! - [`telemetry`]: Prometheus metrics.
 //! - [`synth`]: frames with exact ground truth for tests and benchmarks.
 
+pub mod api;
 pub mod cli;
+pub mod config;
+pub mod jobs;
 pub mod pipeline;
+pub mod server;
+pub mod storage;
 pub mod synth;
+pub mod telemetry;

@@ -8,7 +8,15 @@ use tracing_subscriber::EnvFilter;
 
 fn main() -> ExitCode {
     let args = Cli::parse();
-    let filter = EnvFilter::try_new(&args.log).unwrap_or_else(|_| EnvFilter::new("warn"));
+    let default_level = match args.command {
+        Command::Serve(_) => "info",
+        _ => "warn",
+    };
+    let filter = args
+        .log
+        .as_deref()
+        .and_then(|f| EnvFilter::try_new(f).ok())
+        .unwrap_or_else(|| EnvFilter::new(default_level));
     let logs = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr);
@@ -20,5 +28,31 @@ fn main() -> ExitCode {
     match args.command {
         Command::Detect(a) => cli::detect(a),
         Command::Sample(a) => cli::sample(a),
+        Command::Serve(a) => serve(a),
+        Command::Openapi => {
+            println!("{}", gcp_tagger::api::openapi_json());
+            ExitCode::SUCCESS
+        }
+    }
+}
+
+fn serve(args: gcp_tagger::config::ServeArgs) -> ExitCode {
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .thread_name("http")
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("error: cannot start the async runtime: {e}");
+            return ExitCode::from(cli::exit::INTERNAL);
+        }
+    };
+    match runtime.block_on(gcp_tagger::server::run(args)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(cli::exit::USAGE)
+        }
     }
 }

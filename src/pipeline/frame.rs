@@ -30,7 +30,70 @@ pub struct FrameOptions {
     pub crs: TargetCrs,
 }
 
+/// A setting that cannot work, named as the API spells it (the command line
+/// spells it with dashes).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{field}: {message}")]
+pub struct InvalidSetting {
+    pub field: &'static str,
+    pub message: String,
+}
+
+/// Smallest tile side accepted: below it the overlap eats most of the tile.
+pub const MIN_TILE_SIZE: usize = 256;
+/// Largest tile side accepted: one tile's detector buffers stay under ~1 GiB.
+pub const MAX_TILE_SIZE: usize = 8192;
+
 impl FrameOptions {
+    /// Checks settings that depend on each other; every entry point (command
+    /// line and service) goes through here.
+    pub fn new(
+        detector: DetectorConfig,
+        tile_size: usize,
+        max_target_px: usize,
+        crs: TargetCrs,
+    ) -> Result<FrameOptions, InvalidSetting> {
+        let bad = |field, message: String| Err(InvalidSetting { field, message });
+        if detector.modes.is_empty() {
+            return bad("marker_types", "at least one marker type is needed".into());
+        }
+        if !(MIN_TILE_SIZE..=MAX_TILE_SIZE).contains(&tile_size) {
+            return bad(
+                "tile_size",
+                format!("{tile_size} is outside {MIN_TILE_SIZE}..={MAX_TILE_SIZE} px"),
+            );
+        }
+        if max_target_px < 8 || max_target_px * 2 > tile_size {
+            return bad(
+                "max_target_px",
+                format!(
+                    "{max_target_px} must be at least 8 and at most half of tile_size {tile_size}"
+                ),
+            );
+        }
+        let min = detector.min_target_px;
+        if !(min.is_finite() && min >= 8.0 && min <= max_target_px as f64) {
+            return bad(
+                "min_target_px",
+                format!("{min} must be at least 8 and at most max_target_px {max_target_px}"),
+            );
+        }
+        if let Some(t) = detector.max_refine_shift_px {
+            if !(t.is_finite() && t > 0.0 && t <= max_target_px as f64) {
+                return bad(
+                    "pixel_tolerance",
+                    format!("{t} must be a positive number of pixels, at most max_target_px"),
+                );
+            }
+        }
+        Ok(FrameOptions {
+            detector,
+            tile_size,
+            max_target_px,
+            crs,
+        })
+    }
+
     /// Overlap between neighbouring tiles: the largest target plus a margin
     /// for the refinement window, so any target is whole in some tile.
     pub fn overlap(&self) -> usize {
@@ -39,7 +102,7 @@ impl FrameOptions {
 }
 
 /// A detection placed in the world.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Target {
     pub detection: Detection,
     /// The target touches the frame border and may be cut off.
@@ -51,7 +114,7 @@ pub struct Target {
 }
 
 /// Everything found in one frame.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameResult {
     /// The frame's name in outputs (path relative to the input given).
     pub image: String,

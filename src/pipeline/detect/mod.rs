@@ -26,7 +26,10 @@ pub struct DetectError {
 }
 
 /// Kinds of target a job can ask for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum MarkerType {
     AprilTag,
     Aruco,
@@ -69,7 +72,7 @@ impl FromStr for MarkerType {
 }
 
 /// Whether subpixel refinement was kept.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Refinement {
     /// All corners refined.
     Refined,
@@ -89,7 +92,7 @@ impl Refinement {
 
 /// One target found in one tile, in frame pixel coordinates (OpenCV
 /// convention: the centre of the top-left pixel is 0,0).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Detection {
     pub marker_type: MarkerType,
     /// Coded targets' id within their dictionary.

@@ -1,0 +1,460 @@
+//! `/v1/flights`: many frames in one submission, followed and fetched
+//! together.
+
+use axum::extract::{Path, Query, RawQuery, Request, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use uuid::Uuid;
+
+use super::error::{ApiError, Problem};
+use super::jobs::UploadQuery;
+use super::upload::{self, Expect, Target};
+use super::views::*;
+use super::{results, watch, AppState};
+use crate::jobs::params::PARAM_KEYS;
+use crate::jobs::{FlightState, JobParams};
+use crate::pipeline::output::Format;
+
+/// Parses and checks the detection parameters of a query string; `extra`
+/// names the other keys the route takes. Unknown keys are refused, so a
+/// typo never silently falls back to a default.
+pub async fn checked_params(
+    query: Option<&str>,
+    extra: &[&'static str],
+) -> Result<(JobParams, Option<String>), ApiError> {
+    let pairs: Vec<(String, String)> = form_urlencoded::parse(query.unwrap_or("").as_bytes())
+        .into_owned()
+        .collect();
+    let mut name = None;
+    for (k, v) in &pairs {
+        if extra.contains(&k.as_str()) {
+            if k == "name" {
+                name = Some(v.clone());
+            }
+        } else if !PARAM_KEYS.contains(&k.as_str()) {
+            return Err(ApiError::bad_request(
+                "unknown_parameter",
+                format!(
+                    "unknown query parameter {k:?} (known: {})",
+                    [PARAM_KEYS, extra].concat().join(", ")
+                ),
+            )
+            .with_field(k.clone()));
+        }
+    }
+    let params = JobParams::from_pairs(pairs.iter().map(|(k, v)| (k.as_str(), v.as_str())))?;
+    // The CRS goes through PROJ (a database lookup): off the async threads.
+    let (canonical, _) = tokio::task::spawn_blocking(move || params.check())
+        .await
+        .map_err(|e| ApiError::internal("checking parameters", e))??;
+    Ok((canonical, name))
+}
+
+/// Frames of a flight as a multipart form.
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)] // documents the request body
+pub struct FlightUpload {
+    /// One file part per frame (any field name); each part's file name names the frame.
+    #[schema(value_type = Vec<String>, format = Binary)]
+    frames: Vec<Vec<u8>>,
+}
+
+/// Submits a flight: a multipart form with one file part per frame
+/// (`curl -F f=@a.jpg -F f=@b.jpg '.../v1/flights?crs=EPSG:32611'`). Each
+/// frame becomes a queued job; a part that is not an image becomes a failed
+/// job with the reason, and the other frames go on.
+#[utoipa::path(
+    post, path = "/v1/flights", tag = "flights",
+    params(UploadQuery),
+    request_body(content((FlightUpload = "multipart/form-data"))),
+    responses(
+        (status = 201, description = "Flight created; its jobs are queued", body = FlightSubmitted,
+            headers(("Location" = String, description = "The flight's URL"))),
+        (status = 400, description = "Malformed request", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Two frames of one name", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Frame or request too large", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not multipart/form-data", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid detection parameter", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn submit_flight(
+    State(state): State<AppState>,
+    RawQuery(query): RawQuery,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let (params, _) = checked_params(query.as_deref(), &[]).await?;
+    let upload = upload::receive(&state, req, Expect::Many, None).await?;
+    let (store, data) = (state.store.clone(), state.data.clone());
+    let (flight, jobs) = tokio::task::spawn_blocking(move || {
+        upload::commit(&store, &data, upload, Target::NewFlight(params))
+    })
+    .await
+    .map_err(|e| ApiError::internal("recording the flight", e))??;
+    let view = FlightView::new(&flight, &jobs);
+    tracing::info!(flight.id = %flight.id, frames = jobs.len(), "flight submitted");
+    let body = FlightSubmitted {
+        jobs: jobs.iter().map(JobView::new).collect(),
+        flight: view,
+    };
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, body.flight.links.self_.clone())],
+        Json(body),
+    )
+        .into_response())
+}
+
+/// Adds frames to a flight (multipart, or one raw body named by `name=`),
+/// with the flight's parameters. Lets a browser upload a large flight in
+/// several requests.
+#[utoipa::path(
+    post, path = "/v1/flights/{id}/frames", tag = "flights",
+    params(("id" = Uuid, Path, description = "Flight id"),
+        ("name" = Option<String>, Query, description = "Frame name, for a raw body")),
+    request_body(content(
+        (FlightUpload = "multipart/form-data"),
+        (Vec<u8> = "application/octet-stream"),
+    )),
+    responses(
+        (status = 201, description = "Jobs created", body = FlightSubmitted,
+            headers(("Location" = String, description = "The flight's URL"))),
+        (status = 400, description = "Malformed request", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "A frame of that name is in the flight", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Frame or request too large", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Unsupported body type", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn add_frames(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    RawQuery(query): RawQuery,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    let mut name = None;
+    for (k, v) in form_urlencoded::parse(query.as_deref().unwrap_or("").as_bytes()) {
+        if k != "name" {
+            return Err(ApiError::bad_request(
+                "unknown_parameter",
+                format!(
+                    "unknown query parameter {k:?}: frames added to a flight use its parameters"
+                ),
+            )
+            .with_field(k.into_owned()));
+        }
+        name = Some(v.into_owned());
+    }
+    if state.store.flight(id).is_none() {
+        return Err(ApiError::not_found("flight", id));
+    }
+    let is_multipart = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.to_ascii_lowercase().starts_with("multipart/"));
+    if !is_multipart && name.is_none() {
+        return Err(ApiError::bad_request(
+            "missing_name",
+            "a raw frame added to a flight needs ?name= (names identify frames in results)",
+        )
+        .with_field("name"));
+    }
+    let expect = if is_multipart {
+        Expect::Many
+    } else {
+        Expect::One
+    };
+    let upload = upload::receive(&state, req, expect, name).await?;
+    let (store, data) = (state.store.clone(), state.data.clone());
+    let (flight, jobs) = tokio::task::spawn_blocking(move || {
+        upload::commit(&store, &data, upload, Target::Flight(id))
+    })
+    .await
+    .map_err(|e| ApiError::internal("recording the frames", e))??;
+    let all = state.store.flight_jobs(id).unwrap_or_default();
+    let body = FlightSubmitted {
+        flight: FlightView::new(&flight, &all),
+        jobs: jobs.iter().map(JobView::new).collect(),
+    };
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, body.flight.links.self_.clone())],
+        Json(body),
+    )
+        .into_response())
+}
+
+/// Lists flights, oldest first, a page at a time.
+#[utoipa::path(
+    get, path = "/v1/flights", tag = "flights",
+    params(PageQuery),
+    responses(
+        (status = 200, description = "A page of flights", body = FlightPage),
+        (status = 400, description = "Bad query", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn list_flights(
+    State(state): State<AppState>,
+    query: Result<Query<PageQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<FlightPage>, ApiError> {
+    let Query(q) = query?;
+    let limit = page_limit(q.limit)?;
+    let mut flights = state.store.flights(q.after, limit + 1);
+    let next = (flights.len() > limit).then(|| {
+        flights.truncate(limit);
+        flights.last().map(|f| f.id)
+    });
+    let items = flights
+        .iter()
+        .map(|f| FlightView::new(f, &state.store.flight_jobs(f.id).unwrap_or_default()))
+        .collect();
+    Ok(Json(FlightPage {
+        items,
+        next: next.flatten(),
+    }))
+}
+
+fn flight_view(state: &AppState, id: Uuid) -> Option<FlightView> {
+    let flight = state.store.flight(id)?;
+    let jobs = state.store.flight_jobs(id)?;
+    Some(FlightView::new(&flight, &jobs))
+}
+
+/// A flight's state and job counts; with `wait=N`, answers when every job
+/// ended or after N seconds (long-poll).
+#[utoipa::path(
+    get, path = "/v1/flights/{id}", tag = "flights",
+    params(("id" = Uuid, Path, description = "Flight id"), WaitQuery),
+    responses(
+        (status = 200, description = "The flight", body = FlightView),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_flight(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    query: Result<Query<WaitQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<FlightView>, ApiError> {
+    let Path(id) = id?;
+    let Query(q) = query?;
+    let wait = watch::wait_duration(q.wait)?;
+    if state.store.flight(id).is_none() {
+        return Err(ApiError::not_found("flight", id));
+    }
+    watch::wait_until(&state, wait, || {
+        flight_view(&state, id).is_none_or(|f| f.state == FlightState::Finished)
+    })
+    .await;
+    flight_view(&state, id)
+        .map(Json)
+        .ok_or_else(|| ApiError::not_found("flight", id))
+}
+
+/// A flight's jobs in submission order, a page at a time.
+#[utoipa::path(
+    get, path = "/v1/flights/{id}/jobs", tag = "flights",
+    params(("id" = Uuid, Path, description = "Flight id"), PageQuery),
+    responses(
+        (status = 200, description = "A page of the flight's jobs", body = JobPage),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn flight_jobs(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    query: Result<Query<PageQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<JobPage>, ApiError> {
+    let Path(id) = id?;
+    let Query(q) = query?;
+    let limit = page_limit(q.limit)?;
+    let jobs = state
+        .store
+        .flight_jobs(id)
+        .ok_or_else(|| ApiError::not_found("flight", id))?;
+    let start = match q.after {
+        Some(after) => jobs
+            .iter()
+            .position(|j| j.id == after)
+            .map_or(jobs.len(), |i| i + 1),
+        None => 0,
+    };
+    let rest = &jobs[start..];
+    let items: Vec<JobView> = rest.iter().take(limit).map(JobView::new).collect();
+    let next = (rest.len() > limit)
+        .then(|| items.last().map(|j| j.id))
+        .flatten();
+    Ok(Json(JobPage { items, next }))
+}
+
+/// Server-sent events of a flight: a `flight` event with the flight
+/// whenever it changes, then `end` once every job ended.
+#[utoipa::path(
+    get, path = "/v1/flights/{id}/events", tag = "flights",
+    params(("id" = Uuid, Path, description = "Flight id")),
+    responses(
+        (status = 200, description = "An event stream", content_type = "text/event-stream", body = String),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn flight_events(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    if state.store.flight(id).is_none() {
+        return Err(ApiError::not_found("flight", id));
+    }
+    let inner = state.clone();
+    Ok(watch::event_stream(state, "flight", move || {
+        let view = flight_view(&inner, id)?;
+        let json = serde_json::to_string(&view).expect("views serialize");
+        Some((json, view.state == FlightState::Finished))
+    })
+    .into_response())
+}
+
+async fn flight_results(
+    state: AppState,
+    id: Uuid,
+    format: Format,
+    partial: bool,
+) -> Result<Response, ApiError> {
+    let flight = state
+        .store
+        .flight(id)
+        .ok_or_else(|| ApiError::not_found("flight", id))?;
+    let jobs = state.store.flight_jobs(id).unwrap_or_default();
+    let open = jobs.iter().filter(|j| !j.state.is_terminal()).count();
+    if open > 0 && !partial {
+        return Err(ApiError::conflict(
+            "flight_not_finished",
+            format!(
+                "{open} of {} jobs are still queued or running; wait (GET /v1/flights/{id}?wait=60) or ask with partial=true",
+                jobs.len()
+            ),
+        ));
+    }
+    let stem = format!("flight-{id}");
+    results::render_jobs(&state, jobs, flight.params.crs, format, stem).await
+}
+
+/// Targets of every succeeded frame of a flight, sorted by image name, as
+/// CSV or GeoJSON by `Accept` (CSV by default). The bytes equal
+/// `gcp-tagger detect`'s on the same frames.
+#[utoipa::path(
+    get, path = "/v1/flights/{id}/results", tag = "results",
+    params(("id" = Uuid, Path, description = "Flight id"), ResultsQuery),
+    responses(
+        (status = 200, description = "Targets", content(
+            (String = "text/csv"), (String = "application/geo+json"))),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+        (status = 406, description = "Neither CSV nor GeoJSON acceptable", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_flight_results(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    query: Result<Query<ResultsQuery>, axum::extract::rejection::QueryRejection>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    let Query(q) = query?;
+    let format = results::negotiate(&headers)?;
+    flight_results(state, id, format, q.partial.unwrap_or(false)).await
+}
+
+/// A flight's targets as CSV.
+#[utoipa::path(
+    get, path = "/v1/flights/{id}/results.csv", tag = "results",
+    params(("id" = Uuid, Path, description = "Flight id"), ResultsQuery),
+    responses(
+        (status = 200, description = "Targets", content_type = "text/csv", body = String),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_flight_results_csv(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    query: Result<Query<ResultsQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    let Query(q) = query?;
+    flight_results(state, id, Format::Csv, q.partial.unwrap_or(false)).await
+}
+
+/// A flight's targets as GeoJSON (WGS84 points).
+#[utoipa::path(
+    get, path = "/v1/flights/{id}/results.geojson", tag = "results",
+    params(("id" = Uuid, Path, description = "Flight id"), ResultsQuery),
+    responses(
+        (status = 200, description = "Targets", content_type = "application/geo+json", body = String),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_flight_results_geojson(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    query: Result<Query<ResultsQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    let Query(q) = query?;
+    flight_results(state, id, Format::GeoJson, q.partial.unwrap_or(false)).await
+}
+
+/// Cancels every queued or running job of a flight.
+#[utoipa::path(
+    post, path = "/v1/flights/{id}/cancel", tag = "flights",
+    params(("id" = Uuid, Path, description = "Flight id")),
+    responses(
+        (status = 200, description = "The flight after the cancel", body = FlightView),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn cancel_flight(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<Json<FlightView>, ApiError> {
+    let Path(id) = id?;
+    let store = state.store.clone();
+    tokio::task::spawn_blocking(move || store.cancel_flight(id))
+        .await
+        .map_err(|e| ApiError::internal("canceling", e))??
+        .ok_or_else(|| ApiError::not_found("flight", id))?;
+    flight_view(&state, id)
+        .map(Json)
+        .ok_or_else(|| ApiError::not_found("flight", id))
+}
+
+/// Deletes a flight with all its jobs, frames and results (canceling what
+/// runs).
+#[utoipa::path(
+    delete, path = "/v1/flights/{id}", tag = "flights",
+    params(("id" = Uuid, Path, description = "Flight id")),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn delete_flight(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<StatusCode, ApiError> {
+    let Path(id) = id?;
+    let (store, data) = (state.store.clone(), state.data.clone());
+    tokio::task::spawn_blocking(move || {
+        let jobs = store.delete_flight(id)?;
+        for job in jobs.iter().flatten() {
+            data.remove_job_files(job.id, &job.ext);
+        }
+        Ok::<_, ApiError>(jobs)
+    })
+    .await
+    .map_err(|e| ApiError::internal("deleting", e))??
+    .ok_or_else(|| ApiError::not_found("flight", id))?;
+    Ok(StatusCode::NO_CONTENT)
+}

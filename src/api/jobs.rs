@@ -1,0 +1,340 @@
+//! `/v1/jobs`: one frame in, its state, its results, cancel and delete.
+
+use axum::extract::{Path, Query, RawQuery, Request, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use uuid::Uuid;
+
+use super::error::{ApiError, Problem};
+use super::upload::{self, Expect, Target};
+use super::views::*;
+use super::{flights::checked_params, results, watch, AppState};
+use crate::jobs::{JobFilter, JobState};
+use crate::pipeline::output::Format;
+
+/// Query of a single-frame upload: the detection parameters, plus the
+/// frame's name for raw bodies.
+#[derive(Debug, serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[allow(dead_code)] // documents the query; parsed by `JobParams::from_pairs`
+pub struct UploadQuery {
+    /// Name of the frame in results (raw bodies; multipart parts carry their file name).
+    name: Option<String>,
+    /// Target types, comma separated: `apriltag`, `aruco` (default `apriltag`).
+    marker_types: Option<String>,
+    /// ArUco dictionary, e.g. `4X4_50` (default), `5X5_100`, `ARUCO_ORIGINAL`.
+    dictionary: Option<String>,
+    /// AprilTag family: `16h5`, `25h9`, `36h10`, `36h11` (default).
+    apriltag_family: Option<String>,
+    /// CRS of world coordinates: `EPSG:n`, WKT, PROJJSON or PROJ string (default `EPSG:4326`).
+    crs: Option<String>,
+    /// Largest subpixel corner move accepted, in pixels.
+    pixel_tolerance: Option<f64>,
+    /// Tile side in pixels, 256..=8192 (default 2048).
+    tile_size: Option<usize>,
+    /// Largest target side in pixels (default 200).
+    max_target_px: Option<usize>,
+    /// Smallest target side in pixels (default 16).
+    min_target_px: Option<f64>,
+}
+
+/// A frame as a multipart part.
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)] // documents the request body
+pub struct FrameUpload {
+    /// The frame (JPEG, TIFF/GeoTIFF, PNG); the part's file name names it.
+    #[schema(value_type = String, format = Binary)]
+    frame: Vec<u8>,
+}
+
+/// Submits one frame: a raw body (`curl --data-binary @DJI_0001.JPG
+/// -H 'Content-Type: image/jpeg' '.../v1/jobs?name=DJI_0001.JPG'`) or a
+/// multipart form with one file part (`curl -F frame=@DJI_0001.JPG`).
+/// The job belongs to a new flight of one frame.
+#[utoipa::path(
+    post, path = "/v1/jobs", tag = "jobs",
+    params(UploadQuery),
+    request_body(content(
+        (FrameUpload = "multipart/form-data"),
+        (Vec<u8> = "application/octet-stream"),
+        (Vec<u8> = "image/jpeg"),
+        (Vec<u8> = "image/tiff"),
+        (Vec<u8> = "image/png"),
+    )),
+    responses(
+        (status = 201, description = "Job created and queued", body = JobView,
+            headers(("Location" = String, description = "The job's URL"))),
+        (status = 400, description = "Malformed request", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Frame or request too large", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not an image, or an unsupported body type", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid detection parameter", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn submit_job(
+    State(state): State<AppState>,
+    RawQuery(query): RawQuery,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let (params, name) = checked_params(query.as_deref(), &["name"]).await?;
+    let upload = upload::receive(&state, req, Expect::One, name).await?;
+    if let Some(Err(e)) = upload.parts.first().map(|p| &p.content) {
+        let status = if e.code == "empty_frame" {
+            StatusCode::BAD_REQUEST
+        } else {
+            StatusCode::UNSUPPORTED_MEDIA_TYPE
+        };
+        let code = if e.code == "empty_frame" {
+            "empty_frame"
+        } else {
+            "not_an_image"
+        };
+        return Err(ApiError::new(status, code, e.message.clone()));
+    }
+    let (store, data) = (state.store.clone(), state.data.clone());
+    let (_, jobs) = tokio::task::spawn_blocking(move || {
+        upload::commit(&store, &data, upload, Target::NewFlight(params))
+    })
+    .await
+    .map_err(|e| ApiError::internal("recording the job", e))??;
+    let view = JobView::new(&jobs[0]);
+    tracing::info!(job.id = %view.id, image = %view.image, "job submitted");
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, view.links.self_.clone())],
+        Json(view),
+    )
+        .into_response())
+}
+
+/// Lists jobs, oldest first, filtered by flight and state, a page at a time.
+#[utoipa::path(
+    get, path = "/v1/jobs", tag = "jobs",
+    params(JobListQuery),
+    responses(
+        (status = 200, description = "A page of jobs", body = JobPage),
+        (status = 400, description = "Bad query", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn list_jobs(
+    State(state): State<AppState>,
+    query: Result<Query<JobListQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<JobPage>, ApiError> {
+    let Query(q) = query?;
+    let limit = page_limit(q.limit)?;
+    let items = state.store.jobs(&JobFilter {
+        flight: q.flight,
+        state: q.state,
+        after: q.after,
+        limit: limit + 1,
+    });
+    Ok(Json(page(items.iter().map(JobView::new).collect(), limit)))
+}
+
+fn page(mut items: Vec<JobView>, limit: usize) -> JobPage {
+    let next = (items.len() > limit).then(|| {
+        items.truncate(limit);
+        items.last().map(|j| j.id)
+    });
+    JobPage {
+        items,
+        next: next.flatten(),
+    }
+}
+
+/// A job's state and progress; with `wait=N`, answers when the job ends or
+/// after N seconds, whichever is first (long-poll).
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id"), WaitQuery),
+    responses(
+        (status = 200, description = "The job", body = JobView),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_job(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    query: Result<Query<WaitQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<JobView>, ApiError> {
+    let Path(id) = id?;
+    let Query(q) = query?;
+    let wait = watch::wait_duration(q.wait)?;
+    if state.store.job(id).is_none() {
+        return Err(ApiError::not_found("job", id));
+    }
+    watch::wait_until(&state, wait, || {
+        state.store.job(id).is_none_or(|j| j.state.is_terminal())
+    })
+    .await;
+    let job = state
+        .store
+        .job(id)
+        .ok_or_else(|| ApiError::not_found("job", id))?;
+    Ok(Json(JobView::new(&job)))
+}
+
+/// Server-sent events of a job: a `job` event with the job whenever it
+/// changes, then `end` with its final state.
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/events", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "An event stream", content_type = "text/event-stream", body = String),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn job_events(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    if state.store.job(id).is_none() {
+        return Err(ApiError::not_found("job", id));
+    }
+    let store = state.store.clone();
+    Ok(watch::event_stream(state, "job", move || {
+        let job = store.job(id)?;
+        let json = serde_json::to_string(&JobView::new(&job)).expect("views serialize");
+        Some((json, job.state.is_terminal()))
+    })
+    .into_response())
+}
+
+async fn job_results(state: AppState, id: Uuid, format: Format) -> Result<Response, ApiError> {
+    let job = state
+        .store
+        .job(id)
+        .ok_or_else(|| ApiError::not_found("job", id))?;
+    if job.state != JobState::Succeeded {
+        let why = job
+            .error
+            .as_ref()
+            .map(|e| format!(": {}", e.message))
+            .unwrap_or_default();
+        return Err(ApiError::conflict(
+            "job_not_succeeded",
+            format!(
+                "job {id} is {}{why}; results exist once it succeeded",
+                job.state.as_str()
+            ),
+        ));
+    }
+    let flight = state
+        .store
+        .flight(job.flight_id)
+        .ok_or_else(|| ApiError::not_found("job", id))?;
+    let stem = format!("job-{id}");
+    results::render_jobs(&state, vec![job], flight.params.crs, format, stem).await
+}
+
+/// A succeeded job's targets, as CSV or GeoJSON by the `Accept` header
+/// (CSV by default). The bytes equal `gcp-tagger detect`'s for the frame.
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/results", tag = "results",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Targets", content(
+            (String = "text/csv"), (String = "application/geo+json"))),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+        (status = 406, description = "Neither CSV nor GeoJSON acceptable", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The job has not succeeded", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_job_results(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    let format = results::negotiate(&headers)?;
+    job_results(state, id, format).await
+}
+
+/// A succeeded job's targets as CSV.
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/results.csv", tag = "results",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Targets", content_type = "text/csv", body = String),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The job has not succeeded", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_job_results_csv(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    job_results(state, id, Format::Csv).await
+}
+
+/// A succeeded job's targets as GeoJSON (WGS84 points).
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/results.geojson", tag = "results",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Targets", content_type = "application/geo+json", body = String),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The job has not succeeded", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_job_results_geojson(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<Response, ApiError> {
+    let Path(id) = id?;
+    job_results(state, id, Format::GeoJson).await
+}
+
+/// Cancels a job: a queued job at once, a running one at its next tile
+/// (`cancel_requested` is true until then). Canceling an ended job changes
+/// nothing.
+#[utoipa::path(
+    post, path = "/v1/jobs/{id}/cancel", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "The job after the cancel", body = JobView),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn cancel_job(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<Json<JobView>, ApiError> {
+    let Path(id) = id?;
+    let store = state.store.clone();
+    let job = tokio::task::spawn_blocking(move || store.cancel_job(id))
+        .await
+        .map_err(|e| ApiError::internal("canceling", e))??
+        .ok_or_else(|| ApiError::not_found("job", id))?;
+    Ok(Json(JobView::new(&job)))
+}
+
+/// Deletes a job, its frame and its results (canceling it if it runs).
+#[utoipa::path(
+    delete, path = "/v1/jobs/{id}", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn delete_job(
+    State(state): State<AppState>,
+    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+) -> Result<StatusCode, ApiError> {
+    let Path(id) = id?;
+    let (store, data) = (state.store.clone(), state.data.clone());
+    tokio::task::spawn_blocking(move || {
+        let job = store.delete_job(id)?;
+        if let Some(job) = &job {
+            data.remove_job_files(job.id, &job.ext);
+        }
+        Ok::<_, ApiError>(job)
+    })
+    .await
+    .map_err(|e| ApiError::internal("deleting", e))??
+    .ok_or_else(|| ApiError::not_found("job", id))?;
+    Ok(StatusCode::NO_CONTENT)
+}

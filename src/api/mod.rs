@@ -1,0 +1,271 @@
+//! The HTTP API: axum routes over the job store, problem+json errors,
+//! OpenAPI (utoipa) served at `/openapi.json` with Swagger UI at `/docs`
+//! (bundled, works offline), metrics, request ids, CORS and bearer keys.
+//! Handlers parse, call the store or the upload spool, and map the answer;
+//! the pipeline runs only on the worker pool.
+
+pub mod error;
+pub mod flights;
+pub mod jobs;
+pub mod ops;
+pub mod results;
+pub mod upload;
+pub mod views;
+pub mod watch;
+
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
+use axum::http::{header, HeaderName, HeaderValue, Method, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::Response;
+use axum::Router;
+use tower_http::cors::{AllowOrigin, CorsLayer};
+use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
+use tower_http::trace::TraceLayer;
+use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+use utoipa::{Modify, OpenApi};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+use utoipa_swagger_ui::SwaggerUi;
+
+use crate::jobs::Store;
+use crate::pipeline::memory::RamBudget;
+use crate::storage::DataDir;
+use crate::telemetry::{HttpLabels, Metrics};
+use error::ApiError;
+pub use upload::UploadLimits;
+
+/// Everything a handler can reach.
+#[derive(Clone)]
+pub struct AppState {
+    pub store: Arc<Store>,
+    pub data: DataDir,
+    pub metrics: Arc<Metrics>,
+    pub budget: Arc<RamBudget>,
+    pub limits: UploadLimits,
+    /// Becomes true when the server starts shutting down.
+    pub shutdown: tokio::sync::watch::Receiver<bool>,
+    /// Workers are running.
+    pub ready: Arc<AtomicBool>,
+}
+
+/// HTTP settings that shape the router.
+#[derive(Debug, Clone, Default)]
+pub struct HttpConfig {
+    /// Bearer keys; empty means no authentication.
+    pub api_keys: Vec<String>,
+    /// Origins allowed by CORS (`*` for any); empty means no CORS headers.
+    pub cors_origins: Vec<String>,
+}
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "gcp-tagger",
+        description = "Finds ground control point targets in drone frames and reports their subpixel \
+            pixel positions and world coordinates. Upload frames (one per job, or a flight of many), \
+            follow their jobs, and fetch results as CSV or GeoJSON. Errors are \
+            application/problem+json with a stable `code`.",
+        license(name = "Apache-2.0")
+    ),
+    modifiers(&BearerAuth),
+    security((), ("bearer" = [])),
+    tags(
+        (name = "jobs", description = "One frame, one job"),
+        (name = "flights", description = "Frames submitted together"),
+        (name = "results", description = "Targets as CSV or GeoJSON"),
+        (name = "operations", description = "Health and metrics"),
+    )
+)]
+struct ApiDoc;
+
+struct BearerAuth;
+impl Modify for BearerAuth {
+    fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
+        let components = openapi.components.get_or_insert_with(Default::default);
+        components.add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(
+                HttpBuilder::new()
+                    .scheme(HttpAuthScheme::Bearer)
+                    .description(Some(
+                        "An API key from the server's configuration (--api-key); needed on every \
+                         route but /livez and /readyz when keys are configured",
+                    ))
+                    .build(),
+            ),
+        );
+    }
+}
+
+fn api_routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::with_openapi(ApiDoc::openapi())
+        .routes(routes!(jobs::submit_job, jobs::list_jobs))
+        .routes(routes!(jobs::get_job, jobs::delete_job))
+        .routes(routes!(jobs::job_events))
+        .routes(routes!(jobs::get_job_results))
+        .routes(routes!(jobs::get_job_results_csv))
+        .routes(routes!(jobs::get_job_results_geojson))
+        .routes(routes!(jobs::cancel_job))
+        .routes(routes!(flights::submit_flight, flights::list_flights))
+        .routes(routes!(flights::get_flight, flights::delete_flight))
+        .routes(routes!(flights::add_frames))
+        .routes(routes!(flights::flight_jobs))
+        .routes(routes!(flights::flight_events))
+        .routes(routes!(flights::get_flight_results))
+        .routes(routes!(flights::get_flight_results_csv))
+        .routes(routes!(flights::get_flight_results_geojson))
+        .routes(routes!(flights::cancel_flight))
+        .routes(routes!(ops::livez))
+        .routes(routes!(ops::readyz))
+        .routes(routes!(ops::metrics))
+}
+
+/// The OpenAPI document, as committed in `openapi/openapi.json`.
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    api_routes().split_for_parts().1
+}
+
+/// The whole application.
+pub fn router(state: AppState, config: &HttpConfig) -> Router {
+    let (routes, spec) = api_routes().split_for_parts();
+    let keys = Arc::new(config.api_keys.clone());
+    let request_id = HeaderName::from_static("x-request-id");
+    let mut app = routes
+        .merge(SwaggerUi::new("/docs").url("/openapi.json", spec))
+        .fallback(error::not_found)
+        .method_not_allowed_fallback(error::method_not_allowed)
+        // Uploads enforce their own limits while streaming (see upload).
+        .layer(DefaultBodyLimit::disable())
+        .layer(middleware::from_fn_with_state(keys, require_api_key))
+        .layer(middleware::from_fn_with_state(state.clone(), record_metrics))
+        .layer(
+            TraceLayer::new_for_http().make_span_with(|req: &Request| {
+                let id = req
+                    .headers()
+                    .get("x-request-id")
+                    .and_then(|v| v.to_str().ok())
+                    .unwrap_or("");
+                tracing::info_span!("request", request.id = %id, method = %req.method(), path = %req.uri().path())
+            }),
+        )
+        .layer(PropagateRequestIdLayer::new(request_id.clone()))
+        .layer(SetRequestIdLayer::new(request_id, MakeRequestUuid))
+        .with_state(state);
+    if let Some(cors) = cors_layer(&config.cors_origins) {
+        // Outermost, so preflight requests are answered before auth.
+        app = app.layer(cors);
+    }
+    app
+}
+
+fn cors_layer(origins: &[String]) -> Option<CorsLayer> {
+    if origins.is_empty() {
+        return None;
+    }
+    let allow = if origins.iter().any(|o| o == "*") {
+        AllowOrigin::any()
+    } else {
+        AllowOrigin::list(
+            origins
+                .iter()
+                .filter_map(|o| HeaderValue::from_str(o.trim_end_matches('/')).ok()),
+        )
+    };
+    Some(
+        CorsLayer::new()
+            .allow_origin(allow)
+            .allow_methods([Method::GET, Method::POST, Method::DELETE])
+            .allow_headers([
+                header::AUTHORIZATION,
+                header::CONTENT_TYPE,
+                header::ACCEPT,
+                header::CONTENT_DISPOSITION,
+            ])
+            .expose_headers([
+                header::LOCATION,
+                header::RETRY_AFTER,
+                header::CONTENT_DISPOSITION,
+                HeaderName::from_static("x-request-id"),
+            ])
+            .max_age(std::time::Duration::from_secs(600)),
+    )
+}
+
+/// Routes open without a key: probes must work without secrets.
+const OPEN_PATHS: &[&str] = &["/livez", "/readyz"];
+
+async fn require_api_key(
+    State(keys): State<Arc<Vec<String>>>,
+    req: Request,
+    next: Next,
+) -> Result<Response, ApiError> {
+    if keys.is_empty() || OPEN_PATHS.contains(&req.uri().path()) {
+        return Ok(next.run(req).await);
+    }
+    let given = req
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim);
+    let unauthorized = |detail: &str| {
+        ApiError::new(StatusCode::UNAUTHORIZED, "unauthorized", detail)
+            .with_header(header::WWW_AUTHENTICATE, "Bearer realm=\"gcp-tagger\"")
+    };
+    match given {
+        None => Err(unauthorized(
+            "this route needs Authorization: Bearer <api key>",
+        )),
+        Some(key)
+            if keys
+                .iter()
+                .any(|k| constant_time_eq(k.as_bytes(), key.as_bytes())) =>
+        {
+            Ok(next.run(req).await)
+        }
+        Some(_) => Err(unauthorized("the API key is not valid")),
+    }
+}
+
+/// Compares without an early exit, so timing does not reveal how much of a
+/// key matched.
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    if a.len() != b.len() {
+        return false;
+    }
+    a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+async fn record_metrics(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    let started = Instant::now();
+    let method = req.method().to_string();
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or("unmatched", |p| p.as_str())
+        .to_string();
+    let response = next.run(req).await;
+    let labels = HttpLabels {
+        method,
+        route,
+        status: response.status().as_u16(),
+    };
+    state.metrics.http_requests.get_or_create(&labels).inc();
+    state
+        .metrics
+        .http_duration
+        .get_or_create(&labels)
+        .observe(started.elapsed().as_secs_f64());
+    response
+}
+
+/// The OpenAPI document as pretty JSON, as committed.
+pub fn openapi_json() -> String {
+    openapi()
+        .to_pretty_json()
+        .expect("the OpenAPI document serializes")
+}

@@ -1,0 +1,91 @@
+//! Results as CSV or GeoJSON, rendered by the pipeline's own writers from
+//! the stored frame results, so the bytes equal the command line's for the
+//! same frames. A flight's frames are sorted by image name, as the command
+//! line sorts them, so the order jobs finished in never shows.
+
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+
+use super::error::ApiError;
+use super::AppState;
+use crate::jobs::{JobRecord, JobState};
+use crate::pipeline::frame::FrameResult;
+use crate::pipeline::georef::TargetCrs;
+use crate::pipeline::output::{render, Format};
+
+/// Media types of the two formats.
+pub const CSV_TYPE: &str = "text/csv; charset=utf-8";
+pub const GEOJSON_TYPE: &str = "application/geo+json";
+
+/// The format asked for by `Accept` (first acceptable range wins; none or
+/// `*/*` means CSV).
+pub fn negotiate(headers: &HeaderMap) -> Result<Format, ApiError> {
+    let Some(accept) = headers.get(header::ACCEPT).and_then(|v| v.to_str().ok()) else {
+        return Ok(Format::Csv);
+    };
+    for range in accept.split(',') {
+        let media = range
+            .split(';')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_ascii_lowercase();
+        match media.as_str() {
+            "text/csv" | "text/*" | "*/*" | "" => return Ok(Format::Csv),
+            "application/geo+json" | "application/json" | "application/*" => {
+                return Ok(Format::GeoJson)
+            }
+            _ => {}
+        }
+    }
+    Err(ApiError::new(
+        StatusCode::NOT_ACCEPTABLE,
+        "not_acceptable",
+        format!("cannot answer Accept: {accept}; results are text/csv or application/geo+json"),
+    ))
+}
+
+/// Reads the stored results of succeeded jobs and renders them; runs on a
+/// blocking thread (file reads, PROJ for the CRS's kind).
+pub async fn render_jobs(
+    state: &AppState,
+    jobs: Vec<JobRecord>,
+    crs: String,
+    format: Format,
+    file_stem: String,
+) -> Result<Response, ApiError> {
+    let data = state.data.clone();
+    let text = tokio::task::spawn_blocking(move || -> Result<String, ApiError> {
+        let crs = TargetCrs::parse(&crs).map_err(|e| ApiError::internal("stored CRS", e))?;
+        let mut frames: Vec<FrameResult> = Vec::with_capacity(jobs.len());
+        for job in jobs.iter().filter(|j| j.state == JobState::Succeeded) {
+            let path = data.result_path(job.id);
+            let bytes = std::fs::read(&path)
+                .map_err(|e| ApiError::internal("cannot read a stored result", e))?;
+            let frame = serde_json::from_slice(&bytes)
+                .map_err(|e| ApiError::internal("cannot parse a stored result", e))?;
+            frames.push(frame);
+        }
+        frames.sort_by(|a, b| a.image.cmp(&b.image));
+        Ok(render(format, &frames, &crs))
+    })
+    .await
+    .map_err(|e| ApiError::internal("rendering results", e))??;
+    let (media, ext) = match format {
+        Format::Csv => (CSV_TYPE, "csv"),
+        Format::GeoJson => (GEOJSON_TYPE, "geojson"),
+    };
+    let disposition = format!("inline; filename=\"{file_stem}.{ext}\"");
+    Ok((
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static(media)),
+            (
+                header::CONTENT_DISPOSITION,
+                HeaderValue::from_str(&disposition).expect("ascii file name"),
+            ),
+            (header::VARY, HeaderValue::from_static("accept")),
+        ],
+        text,
+    )
+        .into_response())
+}

@@ -1,0 +1,368 @@
+//! Receiving frames: raw bodies and multipart parts streamed chunk by chunk
+//! into the spool (never held whole in memory), with size limits counted as
+//! bytes arrive, each file recognised as an image by its first bytes, then
+//! moved into `frames/` and recorded as jobs in one store transaction.
+
+use std::path::PathBuf;
+
+use axum::extract::{FromRequest, Multipart, Request};
+use axum::http::{header, HeaderMap, StatusCode};
+use futures_util::{Stream, StreamExt};
+use tokio::io::AsyncWriteExt;
+use uuid::Uuid;
+
+use super::error::ApiError;
+use super::AppState;
+use crate::jobs::model::JobError;
+use crate::jobs::{FlightId, FlightRecord, JobParams, JobRecord, NewJob};
+use crate::storage::spool::{magic_hex, sanitize_name, sniff_image};
+use crate::storage::DataDir;
+
+/// Upload limits.
+#[derive(Debug, Clone)]
+pub struct UploadLimits {
+    pub max_frame_bytes: u64,
+    pub max_request_bytes: u64,
+    pub max_frames_per_request: usize,
+}
+
+/// One file of a request, in the spool.
+#[derive(Debug)]
+pub struct Part {
+    pub image: String,
+    pub bytes: u64,
+    /// The spooled file and its type, or why it is not an image.
+    pub content: Result<(PathBuf, &'static str), JobError>,
+}
+
+/// Every file of a request. Dropping it removes spooled files not yet
+/// committed, so a failed request leaves nothing behind.
+#[derive(Debug, Default)]
+pub struct Upload {
+    pub parts: Vec<Part>,
+}
+
+impl Drop for Upload {
+    fn drop(&mut self) {
+        for part in &self.parts {
+            if let Ok((path, _)) = &part.content {
+                let _ = std::fs::remove_file(path);
+            }
+        }
+    }
+}
+
+/// How many files a request may carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Expect {
+    One,
+    Many,
+}
+
+/// Reads the request body into the spool: multipart (every part with a
+/// file name is a frame) or a raw body named by `raw_name`.
+pub async fn receive(
+    state: &AppState,
+    req: Request,
+    expect: Expect,
+    raw_name: Option<String>,
+) -> Result<Upload, ApiError> {
+    let limits = &state.limits;
+    if let Some(len) = content_length(req.headers()) {
+        if len > limits.max_request_bytes {
+            return Err(request_too_large(limits));
+        }
+    }
+    let content_type = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let mut upload = Upload::default();
+    let mut total = 0u64;
+    if content_type.starts_with("multipart/form-data") {
+        let mut multipart = Multipart::from_request(req, &()).await.map_err(|e| {
+            ApiError::bad_request("invalid_multipart", format!("bad multipart body: {e}"))
+        })?;
+        loop {
+            let field = multipart.next_field().await.map_err(multipart_error)?;
+            let Some(field) = field else { break };
+            let field_name = field.name().unwrap_or("").to_string();
+            let Some(file_name) = field.file_name().map(str::to_string) else {
+                return Err(ApiError::bad_request(
+                    "unexpected_field",
+                    format!(
+                        "multipart field {field_name:?} is not a file; send frames as file parts \
+                         (curl -F frame=@DJI_0001.JPG) and parameters in the query string"
+                    ),
+                )
+                .with_field(field_name));
+            };
+            if upload.parts.len() == limits.max_frames_per_request {
+                return Err(ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    "too_many_frames",
+                    format!(
+                        "more than {} frames in one request",
+                        limits.max_frames_per_request
+                    ),
+                ));
+            }
+            if expect == Expect::One && !upload.parts.is_empty() {
+                return Err(ApiError::bad_request(
+                    "expected_one_frame",
+                    "this route takes one frame; POST /v1/flights takes many",
+                ));
+            }
+            let stream = field.map(|r| r.map_err(multipart_error));
+            let part = spool_stream(state, file_name, stream, &mut total).await?;
+            upload.parts.push(part);
+        }
+    } else {
+        if content_type.starts_with("application/json")
+            || content_type.starts_with("application/x-www-form-urlencoded")
+            || content_type.starts_with("text/")
+        {
+            return Err(ApiError::new(
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "unsupported_media_type",
+                format!(
+                    "Content-Type {content_type:?}: send the frame's bytes (image/jpeg, \
+                     image/tiff, image/png, application/octet-stream) or multipart/form-data"
+                ),
+            ));
+        }
+        if expect == Expect::Many {
+            return Err(ApiError::new(
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "multipart_required",
+                "a flight is submitted as multipart/form-data, one file part per frame",
+            ));
+        }
+        let name = raw_name
+            .or_else(|| disposition_filename(req.headers()))
+            .unwrap_or_else(|| "upload".to_string());
+        let stream = req
+            .into_body()
+            .into_data_stream()
+            .map(|r| r.map_err(|e| ApiError::bad_request("body_read_failed", e.to_string())));
+        let part = spool_stream(state, name, stream, &mut total).await?;
+        upload.parts.push(part);
+    }
+    if upload.parts.is_empty() {
+        return Err(ApiError::bad_request(
+            "no_frames",
+            "the request carries no file part",
+        ));
+    }
+    Ok(upload)
+}
+
+/// Streams one file into the spool, counting bytes against the limits.
+async fn spool_stream(
+    state: &AppState,
+    raw_name: String,
+    mut stream: impl Stream<Item = Result<axum::body::Bytes, ApiError>> + Unpin,
+    total: &mut u64,
+) -> Result<Part, ApiError> {
+    let limits = &state.limits;
+    let image = sanitize_name(&raw_name).ok_or_else(|| {
+        ApiError::bad_request(
+            "invalid_file_name",
+            format!("file name {raw_name:?} has no usable name"),
+        )
+    })?;
+    let path = state.data.spool_path();
+    let mut file = tokio::fs::File::create(&path)
+        .await
+        .map_err(|e| ApiError::internal("cannot create a spool file", e))?;
+    // Removes the file on every early return below.
+    let mut guard = RemoveOnDrop(Some(path.clone()));
+    let mut head: Vec<u8> = Vec::with_capacity(16);
+    let mut bytes = 0u64;
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk?;
+        bytes += chunk.len() as u64;
+        *total += chunk.len() as u64;
+        if bytes > limits.max_frame_bytes {
+            return Err(ApiError::new(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                "frame_too_large",
+                format!(
+                    "{image}: larger than the {} MiB limit per frame",
+                    limits.max_frame_bytes >> 20
+                ),
+            ));
+        }
+        if *total > limits.max_request_bytes {
+            return Err(request_too_large(limits));
+        }
+        if head.len() < 16 {
+            let take = (16 - head.len()).min(chunk.len());
+            head.extend_from_slice(&chunk[..take]);
+        }
+        file.write_all(&chunk)
+            .await
+            .map_err(|e| ApiError::internal("cannot write to the spool", e))?;
+    }
+    // Durable before the client hears "created".
+    file.sync_all()
+        .await
+        .map_err(|e| ApiError::internal("cannot write to the spool", e))?;
+    drop(file);
+    let content = if bytes == 0 {
+        Err(JobError {
+            code: "empty_frame".into(),
+            message: format!("{image}: the file is empty"),
+        })
+    } else {
+        match sniff_image(&head) {
+            Some(ext) => Ok((guard.0.take().expect("path kept"), ext)),
+            None => Err(JobError {
+                code: "not_an_image".into(),
+                message: format!(
+                    "{image}: not a JPEG, TIFF or PNG image (first bytes {})",
+                    magic_hex(&head)
+                ),
+            }),
+        }
+    };
+    Ok(Part {
+        image,
+        bytes,
+        content,
+    })
+}
+
+struct RemoveOnDrop(Option<PathBuf>);
+impl Drop for RemoveOnDrop {
+    fn drop(&mut self) {
+        if let Some(path) = self.0.take() {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
+
+fn request_too_large(limits: &UploadLimits) -> ApiError {
+    ApiError::new(
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "request_too_large",
+        format!(
+            "the request is larger than the {} MiB limit",
+            limits.max_request_bytes >> 20
+        ),
+    )
+}
+
+fn multipart_error(e: axum::extract::multipart::MultipartError) -> ApiError {
+    let status = e.status();
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::new(status, "request_too_large", e.body_text())
+    } else {
+        ApiError::bad_request(
+            "invalid_multipart",
+            format!("bad multipart body: {}", e.body_text()),
+        )
+    }
+}
+
+fn content_length(headers: &HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)?
+        .to_str()
+        .ok()?
+        .parse()
+        .ok()
+}
+
+/// `filename` of a `Content-Disposition` header, if any.
+fn disposition_filename(headers: &HeaderMap) -> Option<String> {
+    let value = headers.get(header::CONTENT_DISPOSITION)?.to_str().ok()?;
+    value.split(';').find_map(|p| {
+        let (k, v) = p.trim().split_once('=')?;
+        (k.trim().eq_ignore_ascii_case("filename")).then(|| v.trim().trim_matches('"').to_string())
+    })
+}
+
+/// Where the jobs of an upload go.
+pub enum Target {
+    NewFlight(JobParams),
+    Flight(FlightId),
+}
+
+/// Moves an upload's frames into place and records them as jobs, in one
+/// store transaction. Refused parts become failed jobs with their reason,
+/// so the rest of a flight goes on. Runs on a blocking thread.
+pub fn commit(
+    store: &crate::jobs::Store,
+    data: &DataDir,
+    mut upload: Upload,
+    target: Target,
+) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
+    let mut seen: Vec<String> = match &target {
+        Target::Flight(id) => store.flight_images(*id),
+        Target::NewFlight(_) => Vec::new(),
+    };
+    for part in &upload.parts {
+        if seen.contains(&part.image) {
+            return Err(ApiError::conflict(
+                "duplicate_image",
+                format!(
+                    "{}: a frame of this name is already in the flight; names identify frames in results",
+                    part.image
+                ),
+            ));
+        }
+        seen.push(part.image.clone());
+    }
+    let mut jobs = Vec::with_capacity(upload.parts.len());
+    for part in upload.parts.iter_mut() {
+        let id = Uuid::now_v7();
+        let (ext, rejected) = match part.content.clone() {
+            Ok((tmp, ext)) => {
+                let dest = data.frame_path(id, ext);
+                std::fs::rename(&tmp, &dest)
+                    .map_err(|e| ApiError::internal("cannot move a frame into place", e))?;
+                // Until the commit below succeeds, dropping the upload
+                // removes the frame from its new place.
+                part.content = Ok((dest, ext));
+                (ext.to_string(), None)
+            }
+            Err(e) => ("none".to_string(), Some(e.clone())),
+        };
+        jobs.push(NewJob {
+            id,
+            image: part.image.clone(),
+            ext,
+            bytes: part.bytes,
+            rejected,
+        });
+    }
+    sync_dir(&data.root().join("frames"));
+    let recorded = match target {
+        Target::NewFlight(params) => store.create_flight(&params, &jobs).map(|f| {
+            let jobs = store.flight_jobs(f.id).unwrap_or_default();
+            Some((f, jobs))
+        }),
+        Target::Flight(id) => store
+            .add_to_flight(id, &jobs)
+            .map(|r| r.and_then(|jobs| Some((store.flight(id)?, jobs)))),
+    };
+    match recorded {
+        Ok(Some(done)) => {
+            // Committed: the frames belong to their jobs now.
+            upload.parts.clear();
+            Ok(done)
+        }
+        Ok(None) => Err(ApiError::not_found("flight", "(deleted meanwhile)")),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Makes renames in `dir` durable.
+fn sync_dir(dir: &std::path::Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+}

@@ -1,0 +1,106 @@
+//! Configuration of `gcp-tagger serve`: every flag also readable from a
+//! `GCP_TAGGER_*` environment variable, with defaults that serve a local
+//! data folder and need no external service.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use clap::Args;
+
+use crate::pipeline::memory::default_max_ram_bytes;
+
+/// Flags of `serve`.
+#[derive(Args, Debug, Clone)]
+pub struct ServeArgs {
+    /// Address to listen on; port 0 picks a free port (the bound address is printed and logged).
+    #[arg(long, env = "GCP_TAGGER_LISTEN", default_value = "127.0.0.1:8080")]
+    pub listen: SocketAddr,
+    /// Folder for the job store, uploaded frames and results (created if missing).
+    #[arg(long, env = "GCP_TAGGER_DATA_DIR", default_value = "gcp-tagger-data")]
+    pub data_dir: PathBuf,
+    /// Memory limit for the whole process, in GiB (default: half of the machine's or container's memory).
+    #[arg(long, env = "GCP_TAGGER_MAX_RAM_GB")]
+    pub max_ram_gb: Option<f64>,
+    /// Jobs run at once at most (default: number of cores); the RAM budget may allow fewer.
+    #[arg(long, env = "GCP_TAGGER_WORKERS")]
+    pub workers: Option<usize>,
+    /// Largest frame accepted, in MiB.
+    #[arg(long, env = "GCP_TAGGER_MAX_FRAME_MB", default_value_t = 512)]
+    pub max_frame_mb: u64,
+    /// Largest request body accepted (a whole flight upload), in MiB.
+    #[arg(long, env = "GCP_TAGGER_MAX_REQUEST_MB", default_value_t = 16384)]
+    pub max_request_mb: u64,
+    /// Most frames in one request.
+    #[arg(
+        long,
+        env = "GCP_TAGGER_MAX_FRAMES_PER_REQUEST",
+        default_value_t = 2000
+    )]
+    pub max_frames_per_request: usize,
+    /// Bearer API keys, comma separated; when set, every route but /livez and /readyz needs one.
+    #[arg(
+        long = "api-key",
+        env = "GCP_TAGGER_API_KEYS",
+        value_delimiter = ',',
+        hide_env_values = true
+    )]
+    pub api_keys: Vec<String>,
+    /// Origins allowed to call the API from browsers (CORS), comma separated; `*` allows any.
+    #[arg(
+        long = "cors-origin",
+        env = "GCP_TAGGER_CORS_ORIGINS",
+        value_delimiter = ','
+    )]
+    pub cors_origins: Vec<String>,
+    /// On SIGTERM/SIGINT, seconds running jobs get to finish before they are stopped and left queued.
+    #[arg(long, env = "GCP_TAGGER_SHUTDOWN_GRACE_SECS", default_value_t = 30)]
+    pub shutdown_grace_secs: u64,
+}
+
+/// A setting of `serve` that cannot work.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct ConfigError(pub String);
+
+impl ServeArgs {
+    /// The process memory limit in bytes.
+    pub fn max_ram_bytes(&self) -> Result<u64, ConfigError> {
+        match self.max_ram_gb {
+            Some(gb) if gb.is_finite() && gb > 0.0 => Ok((gb * (1u64 << 30) as f64) as u64),
+            Some(gb) => Err(ConfigError(format!(
+                "--max-ram-gb must be positive, got {gb}"
+            ))),
+            None => Ok(default_max_ram_bytes()),
+        }
+    }
+
+    pub fn workers(&self) -> Result<usize, ConfigError> {
+        match self.workers {
+            Some(0) => Err(ConfigError("--workers must be at least 1".into())),
+            Some(n) => Ok(n),
+            None => Ok(std::thread::available_parallelism().map_or(1, |n| n.get())),
+        }
+    }
+
+    /// Checks what clap cannot: non-empty keys, sane limits.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.max_ram_bytes()?;
+        self.workers()?;
+        if self.api_keys.iter().any(|k| k.trim().len() < 16) {
+            return Err(ConfigError(
+                "--api-key: every key needs at least 16 characters".into(),
+            ));
+        }
+        if self.max_frame_mb == 0 || self.max_request_mb < self.max_frame_mb {
+            return Err(ConfigError(
+                "--max-frame-mb must be positive and at most --max-request-mb".into(),
+            ));
+        }
+        if self.max_frames_per_request == 0 {
+            return Err(ConfigError(
+                "--max-frames-per-request must be positive".into(),
+            ));
+        }
+        Ok(())
+    }
+}

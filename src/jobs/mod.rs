@@ -1,0 +1,13 @@
+//! Jobs: records, parameters, the durable store and queue, and the
+//! RAM-bounded worker pool that runs the pipeline on them. Nothing here
+//! knows about HTTP.
+
+pub mod model;
+pub mod params;
+pub mod pool;
+pub mod store;
+
+pub use model::{FlightId, FlightRecord, FlightState, JobError, JobId, JobRecord, JobState};
+pub use params::JobParams;
+pub use pool::{PoolConfig, WorkerPool};
+pub use store::{JobFilter, NewJob, Store, StoreError};

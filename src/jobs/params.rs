@@ -1,0 +1,191 @@
+//! Detection parameters of a submission: parsed from the request's query
+//! string, checked once at submission, stored with the flight, and turned
+//! into the pipeline's [`FrameOptions`] by the worker that runs each job.
+
+use serde::{Deserialize, Serialize};
+
+use crate::pipeline::detect::{AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType};
+use crate::pipeline::frame::{
+    FrameOptions, InvalidSetting, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE,
+};
+use crate::pipeline::georef::TargetCrs;
+
+/// Detection parameters, in canonical form once [`JobParams::parse`] accepted
+/// them. Defaults match the command line's, except that `crs` defaults to
+/// WGS84 (`EPSG:4326`) so a bare upload works.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct JobParams {
+    /// Target types, comma separated: `apriltag`, `aruco`.
+    #[schema(example = "apriltag")]
+    pub marker_types: String,
+    /// ArUco dictionary (used when `aruco` is asked for).
+    #[schema(example = "4X4_50")]
+    pub dictionary: String,
+    /// AprilTag family (used when `apriltag` is asked for).
+    #[schema(example = "36h11")]
+    pub apriltag_family: String,
+    /// CRS of the world coordinates: `EPSG:n`, WKT, PROJJSON or a PROJ string.
+    #[schema(example = "EPSG:32611")]
+    pub crs: String,
+    /// Largest corner move accepted from subpixel refinement, in pixels
+    /// (default: 0.6 of a marker cell, at least 1.5 px).
+    pub pixel_tolerance: Option<f64>,
+    /// Tile side in pixels.
+    pub tile_size: usize,
+    /// Largest target side in pixels.
+    pub max_target_px: usize,
+    /// Smallest target side in pixels.
+    pub min_target_px: f64,
+}
+
+impl Default for JobParams {
+    fn default() -> Self {
+        JobParams {
+            marker_types: "apriltag".into(),
+            dictionary: ArucoDictionary::default().to_string(),
+            apriltag_family: AprilTagFamily::default().to_string(),
+            crs: "EPSG:4326".into(),
+            pixel_tolerance: None,
+            tile_size: DEFAULT_TILE_SIZE,
+            max_target_px: DEFAULT_MAX_TARGET_PX,
+            min_target_px: 16.0,
+        }
+    }
+}
+
+/// The query keys that are detection parameters.
+pub const PARAM_KEYS: &[&str] = &[
+    "marker_types",
+    "dictionary",
+    "apriltag_family",
+    "crs",
+    "pixel_tolerance",
+    "tile_size",
+    "max_target_px",
+    "min_target_px",
+];
+
+impl JobParams {
+    /// Builds parameters from `key=value` pairs over the defaults; a key
+    /// that is not a parameter, a repeated key or a value of the wrong type
+    /// is an error naming it. Call [`JobParams::check`] afterwards.
+    pub fn from_pairs<'a>(
+        pairs: impl IntoIterator<Item = (&'a str, &'a str)>,
+    ) -> Result<JobParams, InvalidSetting> {
+        let mut p = JobParams::default();
+        let mut seen: Vec<&str> = Vec::new();
+        for (key, value) in pairs {
+            let Some(&field) = PARAM_KEYS.iter().find(|k| **k == key) else {
+                continue;
+            };
+            if seen.contains(&field) {
+                return Err(invalid(field, "given more than once".into()));
+            }
+            seen.push(field);
+            let number = |what: &str| invalid(field, format!("{value:?} is not {what}"));
+            match field {
+                "marker_types" => p.marker_types = value.to_string(),
+                "dictionary" => p.dictionary = value.to_string(),
+                "apriltag_family" => p.apriltag_family = value.to_string(),
+                "crs" => p.crs = value.to_string(),
+                "pixel_tolerance" => {
+                    p.pixel_tolerance = Some(value.parse().map_err(|_| number("a number"))?)
+                }
+                "tile_size" => p.tile_size = value.parse().map_err(|_| number("an integer"))?,
+                "max_target_px" => {
+                    p.max_target_px = value.parse().map_err(|_| number("an integer"))?
+                }
+                "min_target_px" => {
+                    p.min_target_px = value.parse().map_err(|_| number("a number"))?
+                }
+                _ => unreachable!("every key in PARAM_KEYS is handled"),
+            }
+        }
+        Ok(p)
+    }
+
+    /// Validates every field (the CRS through PROJ, so call it off the async
+    /// runtime) and returns the canonical form and the pipeline's options.
+    pub fn check(&self) -> Result<(JobParams, FrameOptions), InvalidSetting> {
+        let mut modes = Vec::new();
+        for name in self
+            .marker_types
+            .split(',')
+            .filter(|s| !s.trim().is_empty())
+        {
+            modes.push(
+                name.parse::<MarkerType>()
+                    .map_err(|e| invalid("marker_types", e))?,
+            );
+        }
+        modes.sort();
+        modes.dedup();
+        let dictionary: ArucoDictionary = self
+            .dictionary
+            .parse()
+            .map_err(|e| invalid("dictionary", e))?;
+        let family: AprilTagFamily = self
+            .apriltag_family
+            .parse()
+            .map_err(|e| invalid("apriltag_family", e))?;
+        let crs = TargetCrs::parse(&self.crs).map_err(|e| invalid("crs", e.to_string()))?;
+        let options = FrameOptions::new(
+            DetectorConfig {
+                modes: modes.clone(),
+                aruco_dictionary: dictionary,
+                apriltag_family: family,
+                min_target_px: self.min_target_px,
+                max_refine_shift_px: self.pixel_tolerance,
+            },
+            self.tile_size,
+            self.max_target_px,
+            crs,
+        )?;
+        let canonical = JobParams {
+            marker_types: modes
+                .iter()
+                .map(|m| m.as_str())
+                .collect::<Vec<_>>()
+                .join(","),
+            dictionary: dictionary.to_string(),
+            apriltag_family: family.to_string(),
+            crs: self.crs.trim().to_string(),
+            ..self.clone()
+        };
+        Ok((canonical, options))
+    }
+}
+
+fn invalid(field: &'static str, message: String) -> InvalidSetting {
+    InvalidSetting { field, message }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pairs_override_defaults_and_name_the_bad_field() {
+        let p = JobParams::from_pairs([("marker_types", "aruco,apriltag"), ("tile_size", "1024")])
+            .unwrap();
+        assert_eq!(p.tile_size, 1024);
+        let (canonical, options) = p.check().unwrap();
+        assert_eq!(canonical.marker_types, "apriltag,aruco");
+        assert_eq!(options.detector.modes.len(), 2);
+
+        let e = JobParams::from_pairs([("tile_size", "big")]).unwrap_err();
+        assert_eq!(e.field, "tile_size");
+        let e = JobParams::from_pairs([("crs", "a"), ("crs", "b")]).unwrap_err();
+        assert_eq!(e.field, "crs");
+        let e = JobParams::from_pairs([("marker_types", "qr")])
+            .unwrap()
+            .check()
+            .unwrap_err();
+        assert_eq!(e.field, "marker_types");
+        let e = JobParams::from_pairs([("crs", "EPSG:999999")])
+            .unwrap()
+            .check()
+            .unwrap_err();
+        assert_eq!(e.field, "crs");
+    }
+}

@@ -1,0 +1,696 @@
+//! The job store: every flight and job, their states and the queue.
+//!
+//! Reads are served from memory (status requests stay fast while workers
+//! write); every submission and state change is first committed to SQLite
+//! in WAL mode, so a restart finds the queue as it was. Progress (tiles
+//! done) lives in memory only. Writers hold the database lock while they
+//! update memory, so memory always follows the database's order.
+//!
+//! The whole interface is this type's public methods: a later backend
+//! (PostgreSQL for replicas sharing one queue) replaces this file only.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::Duration;
+
+use rusqlite::{params, Connection};
+use tokio::sync::watch;
+
+use super::model::*;
+use super::params::JobParams;
+
+/// Store failures: the database could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("job store: {0}")]
+    Db(#[from] rusqlite::Error),
+    #[error("job store: bad record: {0}")]
+    Corrupt(String),
+}
+
+/// A job to create: a frame already in the spool.
+#[derive(Debug, Clone)]
+pub struct NewJob {
+    pub id: JobId,
+    pub image: String,
+    pub ext: String,
+    pub bytes: u64,
+    /// Set for uploads refused at submission: the job is created failed.
+    pub rejected: Option<JobError>,
+}
+
+/// A job handed to a worker.
+#[derive(Debug, Clone)]
+pub struct Claim {
+    pub job: JobRecord,
+    pub params: JobParams,
+    /// Set when the job is canceled or deleted while running.
+    pub cancel: Arc<AtomicBool>,
+}
+
+/// How a claimed job ended.
+#[derive(Debug, Clone)]
+pub enum Outcome {
+    Succeeded {
+        width: u32,
+        height: u32,
+        targets: u32,
+    },
+    Failed(JobError),
+    Canceled,
+    /// Stopped by shutdown: back to the queue for the next start.
+    Interrupted,
+}
+
+/// Filters for listing jobs.
+#[derive(Debug, Clone, Default)]
+pub struct JobFilter {
+    pub flight: Option<FlightId>,
+    pub state: Option<JobState>,
+    /// Only jobs with an id after this one (pagination cursor).
+    pub after: Option<JobId>,
+    pub limit: usize,
+}
+
+/// Queue figures for metrics and readiness.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct QueueStats {
+    pub queued: usize,
+    pub running: usize,
+}
+
+#[derive(Default)]
+struct State {
+    jobs: BTreeMap<JobId, JobRecord>,
+    flights: BTreeMap<FlightId, FlightRecord>,
+    /// Jobs of each flight, in submission order.
+    flight_jobs: HashMap<FlightId, Vec<JobId>>,
+    /// Queued jobs by queue order.
+    queue: BTreeSet<(i64, JobId)>,
+    cancel: HashMap<JobId, Arc<AtomicBool>>,
+    running: usize,
+}
+
+/// The job store; share it in an `Arc`.
+pub struct Store {
+    db: Mutex<Connection>,
+    state: Mutex<State>,
+    /// Signalled when a job is queued (workers wait on it).
+    work: Condvar,
+    /// Bumped on every change (long-polls and event streams wait on it).
+    changed: watch::Sender<u64>,
+}
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS flights (
+    id TEXT PRIMARY KEY,
+    created_at INTEGER NOT NULL,
+    params TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS jobs (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    id TEXT NOT NULL UNIQUE,
+    flight_id TEXT NOT NULL REFERENCES flights(id) ON DELETE CASCADE,
+    image TEXT NOT NULL,
+    ext TEXT NOT NULL,
+    bytes INTEGER NOT NULL,
+    state TEXT NOT NULL,
+    created_at INTEGER NOT NULL,
+    started_at INTEGER,
+    finished_at INTEGER,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    error_code TEXT,
+    error_message TEXT,
+    width INTEGER,
+    height INTEGER,
+    targets INTEGER
+);
+CREATE INDEX IF NOT EXISTS jobs_flight ON jobs(flight_id);
+";
+
+impl Store {
+    /// Opens (or creates) the store at `path` and loads it. Jobs that were
+    /// running when the process stopped go back to the queue.
+    pub fn open(path: &Path) -> Result<Store, StoreError> {
+        let conn = Connection::open(path)?;
+        // WAL: readers never block the writer; FULL: a commit is on disk
+        // before the client hears "created".
+        conn.pragma_update(None, "journal_mode", "WAL")?;
+        conn.pragma_update(None, "synchronous", "FULL")?;
+        conn.pragma_update(None, "foreign_keys", "ON")?;
+        conn.busy_timeout(Duration::from_secs(5))?;
+        conn.execute_batch(SCHEMA)?;
+        let requeued = conn.execute(
+            "UPDATE jobs SET state = 'queued', started_at = NULL WHERE state = 'running'",
+            [],
+        )?;
+        if requeued > 0 {
+            tracing::info!(
+                requeued,
+                "jobs interrupted by the last stop are queued again"
+            );
+        }
+        let state = load(&conn)?;
+        tracing::info!(
+            flights = state.flights.len(),
+            jobs = state.jobs.len(),
+            queued = state.queue.len(),
+            "job store loaded"
+        );
+        Ok(Store {
+            db: Mutex::new(conn),
+            state: Mutex::new(state),
+            work: Condvar::new(),
+            changed: watch::channel(0).0,
+        })
+    }
+
+    fn db(&self) -> MutexGuard<'_, Connection> {
+        self.db.lock().expect("store db lock")
+    }
+
+    fn state(&self) -> MutexGuard<'_, State> {
+        self.state.lock().expect("store state lock")
+    }
+
+    fn notify(&self) {
+        self.changed.send_modify(|v| *v = v.wrapping_add(1));
+    }
+
+    /// A receiver that sees every change (for waiting without polling).
+    pub fn subscribe(&self) -> watch::Receiver<u64> {
+        self.changed.subscribe()
+    }
+
+    /// Records a new flight with its jobs in one transaction.
+    pub fn create_flight(
+        &self,
+        params: &JobParams,
+        jobs: &[NewJob],
+    ) -> Result<FlightRecord, StoreError> {
+        let flight = FlightRecord {
+            id: uuid::Uuid::now_v7(),
+            created_at: now_millis(),
+            params: params.clone(),
+        };
+        let mut db = self.db();
+        let tx = db.transaction()?;
+        tx.execute(
+            "INSERT INTO flights (id, created_at, params) VALUES (?1, ?2, ?3)",
+            params![
+                flight.id.to_string(),
+                flight.created_at,
+                serde_json::to_string(params).expect("params serialize")
+            ],
+        )?;
+        let records = insert_jobs(&tx, flight.id, jobs)?;
+        tx.commit()?;
+        let mut state = self.state();
+        state.flights.insert(flight.id, flight.clone());
+        state.flight_jobs.insert(flight.id, Vec::new());
+        add_jobs(&mut state, records);
+        drop(state);
+        self.work.notify_all();
+        self.notify();
+        Ok(flight)
+    }
+
+    /// Adds jobs to an existing flight; `None` if there is no such flight.
+    pub fn add_to_flight(
+        &self,
+        flight: FlightId,
+        jobs: &[NewJob],
+    ) -> Result<Option<Vec<JobRecord>>, StoreError> {
+        let mut db = self.db();
+        if !self.state().flights.contains_key(&flight) {
+            return Ok(None);
+        }
+        let tx = db.transaction()?;
+        let records = insert_jobs(&tx, flight, jobs)?;
+        tx.commit()?;
+        add_jobs(&mut self.state(), records.clone());
+        self.work.notify_all();
+        self.notify();
+        Ok(Some(records))
+    }
+
+    pub fn flight(&self, id: FlightId) -> Option<FlightRecord> {
+        self.state().flights.get(&id).cloned()
+    }
+
+    /// Image names already used in a flight.
+    pub fn flight_images(&self, id: FlightId) -> Vec<String> {
+        let state = self.state();
+        state
+            .flight_jobs
+            .get(&id)
+            .map(|ids| ids.iter().map(|j| state.jobs[j].image.clone()).collect())
+            .unwrap_or_default()
+    }
+
+    /// A flight's jobs in submission order.
+    pub fn flight_jobs(&self, id: FlightId) -> Option<Vec<JobRecord>> {
+        let state = self.state();
+        let ids = state.flight_jobs.get(&id)?;
+        Some(ids.iter().map(|j| state.jobs[j].clone()).collect())
+    }
+
+    /// Flights, oldest first, after the cursor.
+    pub fn flights(&self, after: Option<FlightId>, limit: usize) -> Vec<FlightRecord> {
+        let state = self.state();
+        let start = after.map_or(std::ops::Bound::Unbounded, std::ops::Bound::Excluded);
+        state
+            .flights
+            .range((start, std::ops::Bound::Unbounded))
+            .take(limit)
+            .map(|(_, f)| f.clone())
+            .collect()
+    }
+
+    pub fn job(&self, id: JobId) -> Option<JobRecord> {
+        self.state().jobs.get(&id).cloned()
+    }
+
+    /// Jobs matching `filter`, oldest first.
+    pub fn jobs(&self, filter: &JobFilter) -> Vec<JobRecord> {
+        let state = self.state();
+        let start = filter
+            .after
+            .map_or(std::ops::Bound::Unbounded, std::ops::Bound::Excluded);
+        state
+            .jobs
+            .range((start, std::ops::Bound::Unbounded))
+            .map(|(_, j)| j)
+            .filter(|j| filter.flight.is_none_or(|f| j.flight_id == f))
+            .filter(|j| filter.state.is_none_or(|s| j.state == s))
+            .take(filter.limit)
+            .cloned()
+            .collect()
+    }
+
+    pub fn stats(&self) -> QueueStats {
+        let state = self.state();
+        QueueStats {
+            queued: state.queue.len(),
+            running: state.running,
+        }
+    }
+
+    /// Waits up to `timeout` for a queued job and marks it running. Returns
+    /// `None` on timeout or when `stop` is set.
+    pub fn claim_next(
+        &self,
+        stop: &AtomicBool,
+        timeout: Duration,
+    ) -> Result<Option<Claim>, StoreError> {
+        {
+            let mut state = self.state();
+            if state.queue.is_empty() {
+                state = self
+                    .work
+                    .wait_timeout_while(state, timeout, |s| {
+                        s.queue.is_empty() && !stop.load(Ordering::SeqCst)
+                    })
+                    .expect("store state lock")
+                    .0;
+            }
+            if stop.load(Ordering::SeqCst) || state.queue.is_empty() {
+                return Ok(None);
+            }
+        }
+        let db = self.db();
+        let mut state = self.state();
+        // Another worker may have taken it between the two locks.
+        let Some(&(seq, id)) = state.queue.first() else {
+            return Ok(None);
+        };
+        let started = now_millis();
+        db.execute(
+            "UPDATE jobs SET state = 'running', started_at = ?2, attempts = attempts + 1 WHERE id = ?1",
+            params![id.to_string(), started],
+        )?;
+        state.queue.remove(&(seq, id));
+        state.running += 1;
+        let cancel = Arc::new(AtomicBool::new(false));
+        state.cancel.insert(id, cancel.clone());
+        let job = state.jobs.get_mut(&id).expect("queued job exists");
+        job.state = JobState::Running;
+        job.started_at = Some(started);
+        job.attempts += 1;
+        job.tiles_done = 0;
+        job.tiles_total = 0;
+        let job = job.clone();
+        let params = state.flights[&job.flight_id].params.clone();
+        drop(state);
+        drop(db);
+        self.notify();
+        Ok(Some(Claim {
+            job,
+            params,
+            cancel,
+        }))
+    }
+
+    /// Wakes workers waiting in [`Store::claim_next`] (used at shutdown).
+    pub fn wake_workers(&self) {
+        let _state = self.state();
+        self.work.notify_all();
+    }
+
+    /// Records a running job's frame size and tile progress (memory only).
+    pub fn progress(&self, id: JobId, size: Option<(u32, u32)>, done: u32, total: u32) {
+        let mut state = self.state();
+        if let Some(job) = state.jobs.get_mut(&id) {
+            if let Some((w, h)) = size {
+                job.width = Some(w);
+                job.height = Some(h);
+            }
+            job.tiles_done = done;
+            job.tiles_total = total;
+        }
+        drop(state);
+        self.notify();
+    }
+
+    /// Records how a claimed job ended. A job deleted meanwhile stays deleted
+    /// (the caller removes what it wrote when this returns `false`).
+    pub fn finish(&self, id: JobId, outcome: &Outcome) -> Result<bool, StoreError> {
+        let db = self.db();
+        let finished = now_millis();
+        let (state_name, error, size, targets) = match outcome {
+            Outcome::Succeeded {
+                width,
+                height,
+                targets,
+            } => (
+                JobState::Succeeded,
+                None,
+                Some((*width, *height)),
+                Some(*targets),
+            ),
+            Outcome::Failed(e) => (JobState::Failed, Some(e.clone()), None, None),
+            Outcome::Canceled => (JobState::Canceled, None, None, None),
+            Outcome::Interrupted => (JobState::Queued, None, None, None),
+        };
+        let finished_at = (state_name != JobState::Queued).then_some(finished);
+        let changed = db.execute(
+            "UPDATE jobs SET state = ?2, finished_at = ?3, error_code = ?4, error_message = ?5,
+                 width = COALESCE(?6, width), height = COALESCE(?7, height), targets = ?8,
+                 started_at = CASE WHEN ?2 = 'queued' THEN NULL ELSE started_at END
+             WHERE id = ?1",
+            params![
+                id.to_string(),
+                state_name.as_str(),
+                finished_at,
+                error.as_ref().map(|e| e.code.clone()),
+                error.as_ref().map(|e| e.message.clone()),
+                size.map(|s| s.0),
+                size.map(|s| s.1),
+                targets,
+            ],
+        )?;
+        let mut state = self.state();
+        state.cancel.remove(&id);
+        let Some(job) = state.jobs.get_mut(&id) else {
+            // Deleted while running; the running count was settled by delete.
+            return Ok(false);
+        };
+        job.state = state_name;
+        job.finished_at = finished_at;
+        job.error = error;
+        job.cancel_requested = false;
+        if let Some((w, h)) = size {
+            job.width = Some(w);
+            job.height = Some(h);
+        }
+        job.targets = targets;
+        let seq = job.seq;
+        if state_name == JobState::Queued {
+            job.started_at = None;
+            state.queue.insert((seq, id));
+        }
+        state.running -= 1;
+        drop(state);
+        drop(db);
+        if state_name == JobState::Queued {
+            self.work.notify_all();
+        }
+        self.notify();
+        Ok(changed == 1)
+    }
+
+    /// Cancels a job: a queued one at once, a running one at its next tile.
+    /// `None` if there is no such job.
+    pub fn cancel_job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
+        let db = self.db();
+        let mut state = self.state();
+        let Some(job) = state.jobs.get(&id).cloned() else {
+            return Ok(None);
+        };
+        let out = cancel_locked(&db, &mut state, &job)?;
+        drop(state);
+        drop(db);
+        self.notify();
+        Ok(Some(out))
+    }
+
+    /// Cancels every unfinished job of a flight; `None` if there is no such
+    /// flight.
+    pub fn cancel_flight(&self, id: FlightId) -> Result<Option<Vec<JobRecord>>, StoreError> {
+        let db = self.db();
+        let mut state = self.state();
+        let Some(ids) = state.flight_jobs.get(&id).cloned() else {
+            return Ok(None);
+        };
+        let mut out = Vec::with_capacity(ids.len());
+        for job_id in ids {
+            let job = state.jobs[&job_id].clone();
+            out.push(cancel_locked(&db, &mut state, &job)?);
+        }
+        drop(state);
+        drop(db);
+        self.notify();
+        Ok(Some(out))
+    }
+
+    /// Deletes a job's record (cancelling it if it runs); returns the
+    /// removed record so the caller can remove its files.
+    pub fn delete_job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
+        let db = self.db();
+        let mut state = self.state();
+        let Some(job) = state.jobs.get(&id).cloned() else {
+            return Ok(None);
+        };
+        db.execute("DELETE FROM jobs WHERE id = ?1", params![id.to_string()])?;
+        remove_locked(&mut state, &job);
+        if let Some(ids) = state.flight_jobs.get_mut(&job.flight_id) {
+            ids.retain(|j| *j != id);
+        }
+        drop(state);
+        drop(db);
+        self.notify();
+        Ok(Some(job))
+    }
+
+    /// Deletes a flight and all its jobs; returns the removed jobs.
+    pub fn delete_flight(&self, id: FlightId) -> Result<Option<Vec<JobRecord>>, StoreError> {
+        let db = self.db();
+        let mut state = self.state();
+        if !state.flights.contains_key(&id) {
+            return Ok(None);
+        }
+        db.execute("DELETE FROM flights WHERE id = ?1", params![id.to_string()])?;
+        let ids = state.flight_jobs.remove(&id).unwrap_or_default();
+        state.flights.remove(&id);
+        let mut out = Vec::with_capacity(ids.len());
+        for job_id in ids {
+            let job = state.jobs[&job_id].clone();
+            remove_locked(&mut state, &job);
+            out.push(job);
+        }
+        drop(state);
+        drop(db);
+        self.notify();
+        Ok(Some(out))
+    }
+}
+
+fn insert_jobs(
+    tx: &rusqlite::Transaction<'_>,
+    flight: FlightId,
+    jobs: &[NewJob],
+) -> Result<Vec<JobRecord>, StoreError> {
+    let created = now_millis();
+    let mut out = Vec::with_capacity(jobs.len());
+    for new in jobs {
+        let (state, error, finished) = match &new.rejected {
+            Some(e) => (JobState::Failed, Some(e.clone()), Some(created)),
+            None => (JobState::Queued, None, None),
+        };
+        tx.execute(
+            "INSERT INTO jobs (id, flight_id, image, ext, bytes, state, created_at, finished_at,
+                 error_code, error_message)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+            params![
+                new.id.to_string(),
+                flight.to_string(),
+                new.image,
+                new.ext,
+                new.bytes as i64,
+                state.as_str(),
+                created,
+                finished,
+                error.as_ref().map(|e| e.code.clone()),
+                error.as_ref().map(|e| e.message.clone()),
+            ],
+        )?;
+        out.push(JobRecord {
+            id: new.id,
+            flight_id: flight,
+            seq: tx.last_insert_rowid(),
+            image: new.image.clone(),
+            ext: new.ext.clone(),
+            bytes: new.bytes,
+            state,
+            created_at: created,
+            started_at: None,
+            finished_at: finished,
+            attempts: 0,
+            error,
+            width: None,
+            height: None,
+            targets: None,
+            tiles_done: 0,
+            tiles_total: 0,
+            cancel_requested: false,
+        });
+    }
+    Ok(out)
+}
+
+fn add_jobs(state: &mut State, records: Vec<JobRecord>) {
+    for job in records {
+        if job.state == JobState::Queued {
+            state.queue.insert((job.seq, job.id));
+        }
+        state
+            .flight_jobs
+            .entry(job.flight_id)
+            .or_default()
+            .push(job.id);
+        state.jobs.insert(job.id, job);
+    }
+}
+
+fn cancel_locked(
+    db: &Connection,
+    state: &mut State,
+    job: &JobRecord,
+) -> Result<JobRecord, StoreError> {
+    match job.state {
+        JobState::Queued => {
+            let now = now_millis();
+            db.execute(
+                "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1",
+                params![job.id.to_string(), now],
+            )?;
+            state.queue.remove(&(job.seq, job.id));
+            let rec = state.jobs.get_mut(&job.id).expect("job exists");
+            rec.state = JobState::Canceled;
+            rec.finished_at = Some(now);
+            Ok(rec.clone())
+        }
+        JobState::Running => {
+            if let Some(flag) = state.cancel.get(&job.id) {
+                flag.store(true, Ordering::SeqCst);
+            }
+            let rec = state.jobs.get_mut(&job.id).expect("job exists");
+            rec.cancel_requested = true;
+            Ok(rec.clone())
+        }
+        _ => Ok(job.clone()),
+    }
+}
+
+fn remove_locked(state: &mut State, job: &JobRecord) {
+    state.queue.remove(&(job.seq, job.id));
+    if let Some(flag) = state.cancel.remove(&job.id) {
+        flag.store(true, Ordering::SeqCst);
+        state.running -= 1;
+    }
+    state.jobs.remove(&job.id);
+}
+
+fn load(conn: &Connection) -> Result<State, StoreError> {
+    let mut state = State::default();
+    let mut stmt = conn.prepare("SELECT id, created_at, params FROM flights")?;
+    let rows = stmt.query_map([], |r| {
+        Ok((
+            r.get::<_, String>(0)?,
+            r.get::<_, i64>(1)?,
+            r.get::<_, String>(2)?,
+        ))
+    })?;
+    for row in rows {
+        let (id, created_at, params) = row?;
+        let id = parse_id(&id)?;
+        let params: JobParams = serde_json::from_str(&params)
+            .map_err(|e| StoreError::Corrupt(format!("flight {id} params: {e}")))?;
+        state.flights.insert(
+            id,
+            FlightRecord {
+                id,
+                created_at,
+                params,
+            },
+        );
+        state.flight_jobs.insert(id, Vec::new());
+    }
+    let mut stmt = conn.prepare(
+        "SELECT seq, id, flight_id, image, ext, bytes, state, created_at, started_at, finished_at,
+                attempts, error_code, error_message, width, height, targets
+         FROM jobs ORDER BY seq",
+    )?;
+    let mut rows = stmt.query([])?;
+    let mut records = Vec::new();
+    while let Some(r) = rows.next()? {
+        let state_name: String = r.get(6)?;
+        let error = match (
+            r.get::<_, Option<String>>(11)?,
+            r.get::<_, Option<String>>(12)?,
+        ) {
+            (Some(code), Some(message)) => Some(JobError { code, message }),
+            _ => None,
+        };
+        records.push(JobRecord {
+            seq: r.get(0)?,
+            id: parse_id(&r.get::<_, String>(1)?)?,
+            flight_id: parse_id(&r.get::<_, String>(2)?)?,
+            image: r.get(3)?,
+            ext: r.get(4)?,
+            bytes: r.get::<_, i64>(5)? as u64,
+            state: JobState::parse(&state_name)
+                .ok_or_else(|| StoreError::Corrupt(format!("job state {state_name:?}")))?,
+            created_at: r.get(7)?,
+            started_at: r.get(8)?,
+            finished_at: r.get(9)?,
+            attempts: r.get(10)?,
+            error,
+            width: r.get(13)?,
+            height: r.get(14)?,
+            targets: r.get(15)?,
+            tiles_done: 0,
+            tiles_total: 0,
+            cancel_requested: false,
+        });
+    }
+    add_jobs(&mut state, records);
+    Ok(state)
+}
+
+fn parse_id(s: &str) -> Result<uuid::Uuid, StoreError> {
+    s.parse()
+        .map_err(|_| StoreError::Corrupt(format!("id {s:?}")))
+}

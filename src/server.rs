@@ -1,0 +1,128 @@
+//! `gcp-tagger serve`: opens the data folder and job store, starts the
+//! worker pool and the HTTP server, and shuts down gracefully on SIGTERM or
+//! SIGINT: stop taking requests and jobs, give running jobs the grace
+//! period, then stop them and leave them queued for the next start.
+
+use std::future::IntoFuture;
+use std::io::Write;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use tokio::net::TcpListener;
+use tokio::time::Instant;
+
+use crate::api::{self, AppState, HttpConfig, UploadLimits};
+use crate::config::ServeArgs;
+use crate::jobs::{PoolConfig, Store, WorkerPool};
+use crate::storage::DataDir;
+use crate::telemetry::Metrics;
+
+/// Runs the service until a signal stops it.
+pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
+    args.validate()?;
+    let max_ram_bytes = args.max_ram_bytes()?;
+    let data = DataDir::open(&args.data_dir)
+        .with_context(|| format!("cannot use data folder {}", args.data_dir.display()))?;
+    let db_path = data.db_path();
+    let store = tokio::task::spawn_blocking(move || Store::open(&db_path))
+        .await?
+        .context("cannot open the job store")?;
+    let store = Arc::new(store);
+    let metrics = Arc::new(Metrics::new());
+    let pool = WorkerPool::start(
+        store.clone(),
+        data.clone(),
+        metrics.clone(),
+        &PoolConfig {
+            workers: args.workers()?,
+            max_ram_bytes,
+        },
+    );
+    let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
+    let ready = Arc::new(AtomicBool::new(false));
+    let state = AppState {
+        store: store.clone(),
+        data,
+        metrics,
+        budget: pool.budget().clone(),
+        limits: UploadLimits {
+            max_frame_bytes: args.max_frame_mb << 20,
+            max_request_bytes: args.max_request_mb << 20,
+            max_frames_per_request: args.max_frames_per_request,
+        },
+        shutdown: shutdown_rx.clone(),
+        ready: ready.clone(),
+    };
+    let app = api::router(
+        state,
+        &HttpConfig {
+            api_keys: args.api_keys.iter().map(|k| k.trim().to_string()).collect(),
+            cors_origins: args.cors_origins.clone(),
+        },
+    );
+    let listener = TcpListener::bind(args.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    let addr = listener.local_addr()?;
+    tracing::info!(%addr, data_dir = %args.data_dir.display(), max_ram_mib = max_ram_bytes >> 20, "listening");
+    // Scripts and tests read the address from the first line of stdout.
+    println!("gcp-tagger listening on http://{addr}");
+    let _ = std::io::stdout().flush();
+    ready.store(true, Ordering::SeqCst);
+
+    let mut drained = shutdown_rx.clone();
+    let mut server = tokio::spawn(
+        axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                let _ = drained.wait_for(|stop| *stop).await;
+            })
+            .into_future(),
+    );
+    let signal = tokio::select! {
+        s = wait_for_signal() => s,
+        r = &mut server => {
+            r??;
+            anyhow::bail!("the HTTP server stopped on its own");
+        }
+    };
+    tracing::info!(signal, "shutting down: no new requests or jobs");
+    ready.store(false, Ordering::SeqCst);
+    let _ = shutdown_tx.send(true);
+    pool.stop_claiming();
+
+    let grace = Duration::from_secs(args.shutdown_grace_secs);
+    let deadline = Instant::now() + grace;
+    while store.stats().running > 0 && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let left = store.stats().running;
+    if left > 0 {
+        tracing::warn!(
+            jobs = left,
+            "grace period over: stopping running jobs; they stay queued"
+        );
+        pool.abort_running();
+    }
+    // Requests still open (a slow upload) get what is left of the grace.
+    let rest = deadline
+        .saturating_duration_since(Instant::now())
+        .max(Duration::from_secs(1));
+    if tokio::time::timeout(rest, server).await.is_err() {
+        tracing::warn!("open connections dropped at the end of the grace period");
+    }
+    tokio::task::spawn_blocking(move || pool.join()).await?;
+    tracing::info!("stopped");
+    Ok(())
+}
+
+async fn wait_for_signal() -> &'static str {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut term = signal(SignalKind::terminate()).expect("install SIGTERM handler");
+    let mut int = signal(SignalKind::interrupt()).expect("install SIGINT handler");
+    tokio::select! {
+        _ = term.recv() => "SIGTERM",
+        _ = int.recv() => "SIGINT",
+    }
+}

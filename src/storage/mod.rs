@@ -1,0 +1,5 @@
+//! Files on disk: the data folder's layout and the upload spool.
+
+pub mod spool;
+
+pub use spool::{DataDir, SpoolError, SpooledFrame};

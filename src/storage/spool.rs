@@ -1,0 +1,176 @@
+//! The data folder and the upload spool. Uploads stream into a temporary
+//! file in `spool/`, are checked to be an image by their first bytes, and
+//! are renamed into `frames/` only once their job is recorded, so a half
+//! written upload never looks like a frame.
+//!
+//! Layout: `jobs.sqlite` (the store), `frames/{job}.{ext}`,
+//! `results/{job}.json`, `spool/` (uploads in flight).
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use uuid::Uuid;
+
+/// Longest image name kept, in bytes; longer names are cut.
+const MAX_NAME_BYTES: usize = 200;
+
+/// The service's data folder.
+#[derive(Debug, Clone)]
+pub struct DataDir {
+    root: PathBuf,
+}
+
+impl DataDir {
+    /// Creates the folder layout if missing and empties the spool (uploads
+    /// that were in flight when the process stopped were never acknowledged).
+    pub fn open(root: &Path) -> io::Result<DataDir> {
+        let dir = DataDir {
+            root: root.to_path_buf(),
+        };
+        for sub in ["frames", "results", "spool"] {
+            std::fs::create_dir_all(root.join(sub))?;
+        }
+        for entry in std::fs::read_dir(dir.root.join("spool"))? {
+            let _ = std::fs::remove_file(entry?.path());
+        }
+        Ok(dir)
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn db_path(&self) -> PathBuf {
+        self.root.join("jobs.sqlite")
+    }
+
+    pub fn frame_path(&self, job: Uuid, ext: &str) -> PathBuf {
+        self.root.join("frames").join(format!("{job}.{ext}"))
+    }
+
+    pub fn result_path(&self, job: Uuid) -> PathBuf {
+        self.root.join("results").join(format!("{job}.json"))
+    }
+
+    /// A fresh temporary path in the spool.
+    pub fn spool_path(&self) -> PathBuf {
+        self.root
+            .join("spool")
+            .join(format!("{}.part", Uuid::now_v7()))
+    }
+
+    /// Writes `bytes` to `path` through a temporary file and a rename, so the
+    /// file is either whole or absent.
+    pub fn write_atomic(&self, path: &Path, bytes: &[u8]) -> io::Result<()> {
+        let tmp = self.spool_path();
+        std::fs::write(&tmp, bytes)?;
+        std::fs::File::open(&tmp)?.sync_all()?;
+        std::fs::rename(&tmp, path)
+    }
+
+    /// Removes a job's frame and result; missing files are fine.
+    pub fn remove_job_files(&self, job: Uuid, ext: &str) {
+        for path in [self.frame_path(job, ext), self.result_path(job)] {
+            match std::fs::remove_file(&path) {
+                Ok(()) => {}
+                Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+                Err(e) => tracing::warn!(path = %path.display(), error = %e, "cannot remove"),
+            }
+        }
+    }
+}
+
+/// An upload written to the spool and recognised as an image.
+#[derive(Debug)]
+pub struct SpooledFrame {
+    /// Name for results (sanitized file name).
+    pub image: String,
+    /// Extension matching the content: `jpg`, `tif` or `png`.
+    pub ext: &'static str,
+    pub tmp_path: PathBuf,
+    pub bytes: u64,
+}
+
+/// Why an upload was not taken.
+#[derive(Debug, thiserror::Error)]
+pub enum SpoolError {
+    #[error("{name}: the file is empty")]
+    Empty { name: String },
+    #[error("{name}: not a JPEG, TIFF or PNG image (first bytes {magic})")]
+    NotAnImage { name: String, magic: String },
+    #[error("{name}: larger than the {limit_mib} MiB limit per frame")]
+    TooLarge { name: String, limit_mib: u64 },
+}
+
+/// Recognises a supported image by its first bytes.
+pub fn sniff_image(head: &[u8]) -> Option<&'static str> {
+    if head.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        Some("jpg")
+    } else if head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Some("png")
+    } else if head.starts_with(b"II*\0")
+        || head.starts_with(b"MM\0*")
+        || head.starts_with(b"II+\0")
+        || head.starts_with(b"MM\0+")
+    {
+        Some("tif")
+    } else {
+        None
+    }
+}
+
+/// The first bytes of a file, in hex, for error messages.
+pub fn magic_hex(head: &[u8]) -> String {
+    head.iter()
+        .take(8)
+        .map(|b| format!("{b:02x}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// A client's file name made safe to show and store: the last path
+/// component only, control characters dropped, at most 200 bytes. The name
+/// never becomes a path on disk (frames are stored by job id).
+pub fn sanitize_name(raw: &str) -> Option<String> {
+    let base = raw.rsplit(['/', '\\']).next().unwrap_or("");
+    let mut name: String = base.chars().filter(|c| !c.is_control()).collect();
+    name = name.trim().to_string();
+    if name.is_empty() || name == "." || name == ".." {
+        return None;
+    }
+    if name.len() > MAX_NAME_BYTES {
+        let mut cut = MAX_NAME_BYTES;
+        while !name.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        name.truncate(cut);
+    }
+    Some(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_lose_paths_and_control_characters() {
+        assert_eq!(sanitize_name("../../etc/passwd").as_deref(), Some("passwd"));
+        assert_eq!(
+            sanitize_name("C:\\x\\DJI_0001.JPG").as_deref(),
+            Some("DJI_0001.JPG")
+        );
+        assert_eq!(sanitize_name("a\nb.tif").as_deref(), Some("ab.tif"));
+        assert_eq!(sanitize_name("/vsicurl/"), None);
+        assert_eq!(sanitize_name(".."), None);
+        assert_eq!(sanitize_name(&"é".repeat(150)).unwrap().len(), 200);
+    }
+
+    #[test]
+    fn images_are_recognised_by_content() {
+        assert_eq!(sniff_image(&[0xFF, 0xD8, 0xFF, 0xE0]), Some("jpg"));
+        assert_eq!(sniff_image(b"II*\0\x08"), Some("tif"));
+        assert_eq!(sniff_image(b"\x89PNG\r\n\x1a\n"), Some("png"));
+        assert_eq!(sniff_image(b"<VRTDataset>"), None);
+        assert_eq!(sniff_image(b""), None);
+    }
+}

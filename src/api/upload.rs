@@ -115,9 +115,20 @@ pub async fn receive(
                     "this route takes one frame; POST /v1/flights takes many",
                 ));
             }
-            let stream = field.map(|r| r.map_err(multipart_error));
-            let part = spool_stream(state, file_name, stream, &mut total).await?;
-            upload.parts.push(part);
+            let mut stream = field.map(|r| r.map_err(multipart_error));
+            match spool_stream(state, file_name, &mut stream, &mut total).await {
+                Ok(part) => upload.parts.push(part),
+                Err(e) => {
+                    drain(&mut stream).await;
+                    drop(stream);
+                    while let Ok(Ok(Some(mut field))) =
+                        tokio::time::timeout(DRAIN_TIME, multipart.next_field()).await
+                    {
+                        drain(&mut field).await;
+                    }
+                    return Err(e);
+                }
+            }
         }
     } else {
         if content_type.starts_with("application/json")
@@ -143,12 +154,17 @@ pub async fn receive(
         let name = raw_name
             .or_else(|| disposition_filename(req.headers()))
             .unwrap_or_else(|| "upload".to_string());
-        let stream = req
+        let mut stream = req
             .into_body()
             .into_data_stream()
             .map(|r| r.map_err(|e| ApiError::bad_request("body_read_failed", e.to_string())));
-        let part = spool_stream(state, name, stream, &mut total).await?;
-        upload.parts.push(part);
+        match spool_stream(state, name, &mut stream, &mut total).await {
+            Ok(part) => upload.parts.push(part),
+            Err(e) => {
+                drain(&mut stream).await;
+                return Err(e);
+            }
+        }
     }
     if upload.parts.is_empty() {
         return Err(ApiError::bad_request(
@@ -163,7 +179,7 @@ pub async fn receive(
 async fn spool_stream(
     state: &AppState,
     raw_name: String,
-    mut stream: impl Stream<Item = Result<axum::body::Bytes, ApiError>> + Unpin,
+    stream: &mut (impl Stream<Item = Result<axum::body::Bytes, ApiError>> + Unpin),
     total: &mut u64,
 ) -> Result<Part, ApiError> {
     let limits = &state.limits;
@@ -233,6 +249,29 @@ async fn spool_stream(
         bytes,
         content,
     })
+}
+
+/// After refusing an upload, this much more of the body is read and thrown
+/// away so that clients still sending see the error response instead of a
+/// reset connection; beyond it the connection is closed.
+const DRAIN_BYTES: usize = 64 << 20;
+const DRAIN_TIME: std::time::Duration = std::time::Duration::from_secs(10);
+
+async fn drain<S, T, E>(stream: &mut S)
+where
+    S: Stream<Item = Result<T, E>> + Unpin,
+    T: AsRef<[u8]>,
+{
+    let mut left = DRAIN_BYTES;
+    let _ = tokio::time::timeout(DRAIN_TIME, async {
+        while let Some(Ok(chunk)) = stream.next().await {
+            left = left.saturating_sub(chunk.as_ref().len());
+            if left == 0 {
+                break;
+            }
+        }
+    })
+    .await;
 }
 
 struct RemoveOnDrop(Option<PathBuf>);

@@ -13,7 +13,7 @@ use crate::pipeline::georef::Transformer;
 use crate::pipeline::memory::{estimate_frame_bytes, RamBudget, MIB};
 use crate::pipeline::raster::{open_frame, RasterError};
 use crate::storage::DataDir;
-use crate::telemetry::{Metrics, OutcomeLabel, OutcomeLabels};
+use crate::telemetry::{Metrics, OutcomeLabels};
 
 use super::model::JobError;
 use super::store::{Claim, Outcome, Store};
@@ -152,14 +152,14 @@ impl Worker {
         let label = match &outcome {
             Outcome::Succeeded { targets, .. } => {
                 tracing::info!(targets, "job succeeded");
-                OutcomeLabel::Succeeded
+                "succeeded"
             }
             Outcome::Failed(e) => {
                 tracing::warn!(code = %e.code, error = %e.message, "job failed");
-                OutcomeLabel::Failed
+                "failed"
             }
-            Outcome::Canceled => OutcomeLabel::Canceled,
-            Outcome::Interrupted => OutcomeLabel::Interrupted,
+            Outcome::Canceled => "canceled",
+            Outcome::Interrupted => "interrupted",
         };
         let labels = OutcomeLabels { outcome: label };
         self.metrics.jobs_finished.get_or_create(&labels).inc();

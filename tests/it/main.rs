@@ -1,8 +1,10 @@
 //! Integration tests: one binary, frames rendered with exact truth.
 
+mod server;
 mod support;
 
 mod accuracy;
 mod cli;
 mod georef;
+mod service;
 mod tiling;

@@ -112,7 +112,9 @@ pub struct Detection {
     /// contrast (0 = ambiguous, 0.5 = perfect).
     pub decision_margin: Option<f64>,
     /// Distance from the target to the nearest inner tile border; used only to
-    /// pick the best copy when overlapping tiles both see a target.
+    /// pick the best copy when overlapping tiles both see a target (so it is
+    /// not stored with results; infinite when no border is a seam).
+    #[serde(skip)]
     pub tile_margin: f64,
 }
 

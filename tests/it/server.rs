@@ -1,0 +1,166 @@
+//! A real `gcp-tagger serve` process on 127.0.0.1, port 0, for tests: the
+//! address comes from its first stdout line; dropping it sends SIGTERM and
+//! waits (SIGKILL if it does not stop).
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use reqwest::blocking::{multipart, Client, Response};
+use serde_json::Value;
+
+pub struct Server {
+    child: Option<Child>,
+    pub base: String,
+    pub data: PathBuf,
+    pub log: PathBuf,
+    pub client: Client,
+}
+
+impl Server {
+    /// Starts a server on `data` with extra `serve` flags.
+    pub fn start(data: &Path, extra: &[&str]) -> Server {
+        let log = data.with_extension("log");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+            .arg(data)
+            .args(extra)
+            .env("GCP_TAGGER_LOG", "info")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .expect("start gcp-tagger serve");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let base = match line.trim().strip_prefix("gcp-tagger listening on ") {
+            Some(url) => url.to_string(),
+            None => {
+                let _ = child.kill();
+                panic!(
+                    "server did not start: {line:?}\n{}",
+                    std::fs::read_to_string(&log).unwrap_or_default()
+                );
+            }
+        };
+        Server {
+            child: Some(child),
+            base,
+            data: data.to_path_buf(),
+            log,
+            client: Client::builder()
+                .timeout(Duration::from_secs(120))
+                .build()
+                .unwrap(),
+        }
+    }
+
+    pub fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    pub fn get(&self, path: &str) -> Response {
+        self.client.get(self.url(path)).send().unwrap()
+    }
+
+    pub fn get_json(&self, path: &str) -> Value {
+        let r = self.get(path);
+        assert_eq!(r.status(), 200, "GET {path}");
+        r.json().unwrap()
+    }
+
+    pub fn get_text(&self, path: &str) -> String {
+        let r = self.get(path);
+        assert_eq!(r.status(), 200, "GET {path}");
+        r.text().unwrap()
+    }
+
+    /// Uploads files as one multipart request to `path`.
+    pub fn post_files(&self, path: &str, files: &[&Path]) -> Response {
+        let mut form = multipart::Form::new();
+        for f in files {
+            form = form.file("frame", f).unwrap();
+        }
+        self.client
+            .post(self.url(path))
+            .multipart(form)
+            .send()
+            .unwrap()
+    }
+
+    /// Waits for a job to end (long-poll) and returns it.
+    pub fn wait_job(&self, id: &str) -> Value {
+        self.wait(&format!("/v1/jobs/{id}"), |v| {
+            matches!(
+                v["state"].as_str(),
+                Some("succeeded" | "failed" | "canceled")
+            )
+        })
+    }
+
+    /// Waits for a flight to finish (long-poll) and returns it.
+    pub fn wait_flight(&self, id: &str) -> Value {
+        self.wait(&format!("/v1/flights/{id}"), |v| v["state"] == "finished")
+    }
+
+    fn wait(&self, path: &str, done: impl Fn(&Value) -> bool) -> Value {
+        let deadline = Instant::now() + Duration::from_secs(300);
+        loop {
+            let v = self.get_json(&format!("{path}?wait=30"));
+            if done(&v) {
+                return v;
+            }
+            assert!(Instant::now() < deadline, "{path} did not end: {v}");
+        }
+    }
+
+    /// Sends SIGTERM and waits for the process to end.
+    pub fn stop(&mut self) -> ExitStatus {
+        let mut child = self.child.take().expect("running");
+        // SAFETY: kill(2) on our own child's pid.
+        unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                return status;
+            }
+            if Instant::now() > deadline {
+                let _ = child.kill();
+                return child.wait().unwrap();
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    pub fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if self.child.is_some() {
+            self.stop();
+        }
+    }
+}
+
+/// Checks a problem+json answer and returns its body.
+pub fn problem(r: Response, status: u16, code: &str) -> Value {
+    assert_eq!(r.status().as_u16(), status, "status for {code}");
+    let ct = r
+        .headers()
+        .get("content-type")
+        .map(|v| v.to_str().unwrap().to_string())
+        .unwrap_or_default();
+    assert_eq!(ct, "application/problem+json", "content type for {code}");
+    let v: Value = r.json().unwrap();
+    assert_eq!(v["code"], code, "{v}");
+    assert_eq!(v["status"], status);
+    assert!(!v["detail"].as_str().unwrap().is_empty());
+    v
+}

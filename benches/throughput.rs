@@ -11,6 +11,9 @@ use std::time::Instant;
 
 use gcp_tagger::synth::{FileKind, FlightSpec};
 
+mod common;
+use common::generate;
+
 struct Set {
     name: &'static str,
     spec: FlightSpec,
@@ -74,37 +77,6 @@ fn main() {
             );
         }
     }
-}
-
-/// Renders frames in a separate process: Linux carries a process's peak RSS
-/// across fork+exec into its children's rusage, so rendering 8000x6000
-/// frames in this process would inflate every figure measured below.
-fn generate(dir: &Path, spec: &FlightSpec) {
-    let status = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
-        .arg("sample")
-        .arg("--out")
-        .arg(dir)
-        .args([
-            "--frames",
-            &spec.frames.to_string(),
-            "--width",
-            &spec.width.to_string(),
-        ])
-        .args([
-            "--height",
-            &spec.height.to_string(),
-            "--markers",
-            &spec.markers.to_string(),
-        ])
-        .args([
-            "--kind",
-            &spec.kind.to_string(),
-            "--seed",
-            &spec.seed.to_string(),
-        ])
-        .status()
-        .expect("run gcp-tagger sample");
-    assert!(status.success(), "sample generation failed");
 }
 
 /// Runs the release binary at default settings; returns wall seconds and the

@@ -1,17 +1,12 @@
 #!/usr/bin/env bash
-# The main command: installs what is missing, builds, renders sample frames
-# with known targets and detects them. Extra arguments go to `detect`.
+# The main command: installs what is missing, builds, and starts the service
+# on its embedded defaults (http://127.0.0.1:8080, data in ./gcp-tagger-data,
+# memory limit half of the machine's). Extra arguments go to `serve`, e.g.
+#   bash scripts/run.sh --listen 0.0.0.0:8080 --max-ram-gb 4
+# Stop it with Ctrl-C (running jobs get the grace period, the rest stay queued).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 . scripts/env.sh
 cargo build --release --locked
-bin="$CARGO_TARGET_DIR/release/gcp-tagger"
-out="${GCP_TAGGER_DEMO_DIR:-$PWD/demo}"
-if [ ! -f "$out/frames/truth.csv" ]; then
-  "$bin" sample --out "$out/frames" --frames 4 --width 4000 --height 3000 --markers 6 --kind gtiff
-fi
-"$bin" detect "$out/frames" --marker-type apriltag --crs EPSG:4326 --output "$out/results.csv" "$@"
-"$bin" detect "$out/frames" --marker-type apriltag --crs EPSG:4326 --output "$out/results.geojson" --quiet "$@"
-echo "results: $out/results.csv and $out/results.geojson (truth: $out/frames/truth.csv)"
-head -n 5 "$out/results.csv"
+exec "$CARGO_TARGET_DIR/release/gcp-tagger" serve "$@"

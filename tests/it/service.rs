@@ -114,7 +114,10 @@ fn one_frame_by_raw_body_then_results_equal_the_command_line() {
         format!("/v1/jobs/{}", job["id"].as_str().unwrap())
     );
     // A free worker may have claimed it already.
-    assert!(job["state"] == "queued" || job["state"] == "running", "{job}");
+    assert!(
+        job["state"] == "queued" || job["state"] == "running",
+        "{job}"
+    );
     assert_eq!(job["image"], "frame_0001.tif");
 
     let done = server.wait_job(job["id"].as_str().unwrap());

@@ -1,0 +1,184 @@
+//! Load benchmark of `gcp-tagger serve`: a 100-frame flight of 4000x3000
+//! JPEGs submitted in one request to a server limited to `--max-ram-gb 1`.
+//! Prints the throughput (MP/s) next to the command line's on the same
+//! frames and limit, the server's peak RSS against its limit, and the
+//! latency of status requests made while every worker is busy.
+//!
+//! Run: `cargo bench --bench load` (frames are generated once into the
+//! target folder and reused). Under `cargo test` it does nothing.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use gcp_tagger::synth::{FileKind, FlightSpec};
+use reqwest::blocking::{multipart, Client};
+use serde_json::Value;
+
+mod common;
+
+const FRAMES: usize = 100;
+const MAX_RAM_GB: &str = "1";
+
+fn main() {
+    if !std::env::args().any(|a| a == "--bench") {
+        println!("load: run with `cargo bench --bench load`");
+        return;
+    }
+    let spec = FlightSpec {
+        frames: FRAMES,
+        width: 4000,
+        height: 3000,
+        markers: 8,
+        kind: FileKind::Jpeg,
+        seed: 21,
+    };
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("load-frames");
+    if !dir.join("truth.csv").exists() {
+        eprintln!("generating {FRAMES} frames into {}", dir.display());
+        common::generate(&dir, &spec);
+    }
+    let frames: Vec<PathBuf> = (0..FRAMES)
+        .map(|i| dir.join(format!("frame_{i:04}.jpg")))
+        .collect();
+    let megapixels = (spec.width * spec.height * FRAMES) as f64 / 1e6;
+
+    let cli_seconds = run_cli(&dir);
+    let (server_seconds, peak_rss_kib, latencies) = run_server(&frames);
+    let mut ms: Vec<f64> = latencies.iter().map(|d| d.as_secs_f64() * 1e3).collect();
+    ms.sort_by(f64::total_cmp);
+    let q = |p: f64| ms[((ms.len() - 1) as f64 * p).round() as usize];
+    let limit_mib = 1024.0;
+    println!("| measure | value |");
+    println!("|---|---|");
+    println!(
+        "| command line, {FRAMES} frames, --max-ram-gb {MAX_RAM_GB} | {:.1} MP/s |",
+        megapixels / cli_seconds
+    );
+    println!(
+        "| service, one {FRAMES}-frame multipart flight (upload to last result) | {:.1} MP/s ({:.0}% of the command line) |",
+        megapixels / server_seconds,
+        100.0 * cli_seconds / server_seconds
+    );
+    println!(
+        "| service peak RSS (VmHWM) at --max-ram-gb {MAX_RAM_GB} | {:.0} MiB of {limit_mib:.0} MiB |",
+        peak_rss_kib as f64 / 1024.0
+    );
+    println!(
+        "| status requests while workers are busy: n, p50, p99, max | {}, {:.1} ms, {:.1} ms, {:.1} ms |",
+        ms.len(),
+        q(0.5),
+        q(0.99),
+        ms[ms.len() - 1]
+    );
+}
+
+fn run_cli(dir: &Path) -> f64 {
+    let out = dir.with_extension("cli.csv");
+    let start = Instant::now();
+    let status = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .arg("detect")
+        .arg(dir)
+        .args([
+            "--crs",
+            "EPSG:4326",
+            "--quiet",
+            "--max-ram-gb",
+            MAX_RAM_GB,
+            "--output",
+        ])
+        .arg(&out)
+        .status()
+        .expect("run gcp-tagger detect");
+    assert!(status.success());
+    start.elapsed().as_secs_f64()
+}
+
+/// Returns the seconds from the start of the upload to the flight's end,
+/// the server's peak RSS in KiB, and the status request latencies.
+fn run_server(frames: &[PathBuf]) -> (f64, u64, Vec<Duration>) {
+    let data = tempfile::tempdir().expect("temp dir");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .args([
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--max-ram-gb",
+            MAX_RAM_GB,
+        ])
+        .arg("--data-dir")
+        .arg(data.path())
+        .env("GCP_TAGGER_LOG", "warn")
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start gcp-tagger serve");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let base = line.trim().rsplit(' ').next().unwrap().to_string();
+    let client = Client::builder()
+        .timeout(Duration::from_secs(600))
+        .build()
+        .unwrap();
+
+    let start = Instant::now();
+    let mut form = multipart::Form::new();
+    for f in frames {
+        form = form.file("frame", f).unwrap();
+    }
+    let r = client
+        .post(format!("{base}/v1/flights?crs=EPSG:4326"))
+        .multipart(form)
+        .send()
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let body: Value = r.json().unwrap();
+    let flight = body["flight"]["id"].as_str().unwrap().to_string();
+    let job = body["jobs"][FRAMES - 1]["id"].as_str().unwrap().to_string();
+    eprintln!("uploaded in {:.1} s", start.elapsed().as_secs_f64());
+
+    // Status requests, one every 20 ms, while the flight runs.
+    let done = AtomicBool::new(false);
+    let latencies = std::thread::scope(|s| {
+        let poller = s.spawn(|| {
+            let mut out = Vec::new();
+            while !done.load(Ordering::SeqCst) {
+                let t = Instant::now();
+                let r = client.get(format!("{base}/v1/jobs/{job}")).send().unwrap();
+                assert_eq!(r.status(), 200);
+                let _ = r.bytes();
+                out.push(t.elapsed());
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            out
+        });
+        loop {
+            let v: Value = client
+                .get(format!("{base}/v1/flights/{flight}?wait=60"))
+                .send()
+                .unwrap()
+                .json()
+                .unwrap();
+            if v["state"] == "finished" {
+                assert_eq!(v["jobs"]["succeeded"], FRAMES as u64, "{v}");
+                break;
+            }
+        }
+        done.store(true, Ordering::SeqCst);
+        poller.join().unwrap()
+    });
+    let seconds = start.elapsed().as_secs_f64();
+    let status = std::fs::read_to_string(format!("/proc/{}/status", child.id())).unwrap();
+    let hwm_kib = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0);
+    // SAFETY: kill(2) on our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let _ = child.wait();
+    (seconds, hwm_kib, latencies)
+}

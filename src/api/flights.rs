@@ -1,13 +1,14 @@
 //! `/v1/flights`: many frames in one submission, followed and fetched
 //! together.
 
-use axum::extract::{Path, Query, RawQuery, Request, State};
+use axum::extract::{RawQuery, Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use uuid::Uuid;
 
 use super::error::{ApiError, Problem};
+use super::extract::{ApiQuery, IdPath};
 use super::jobs::UploadQuery;
 use super::upload::{self, Expect, Target};
 use super::views::*;
@@ -128,11 +129,10 @@ pub async fn submit_flight(
 )]
 pub async fn add_frames(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
     RawQuery(query): RawQuery,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
     let mut name = None;
     for (k, v) in form_urlencoded::parse(query.as_deref().unwrap_or("").as_bytes()) {
         if k != "name" {
@@ -197,9 +197,8 @@ pub async fn add_frames(
 )]
 pub async fn list_flights(
     State(state): State<AppState>,
-    query: Result<Query<PageQuery>, axum::extract::rejection::QueryRejection>,
+    ApiQuery(q): ApiQuery<PageQuery>,
 ) -> Result<Json<FlightPage>, ApiError> {
-    let Query(q) = query?;
     let limit = page_limit(q.limit)?;
     let mut flights = state.store.flights(q.after, limit + 1);
     let next = (flights.len() > limit).then(|| {
@@ -234,11 +233,9 @@ fn flight_view(state: &AppState, id: Uuid) -> Option<FlightView> {
 )]
 pub async fn get_flight(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
-    query: Result<Query<WaitQuery>, axum::extract::rejection::QueryRejection>,
+    IdPath(id): IdPath,
+    ApiQuery(q): ApiQuery<WaitQuery>,
 ) -> Result<Json<FlightView>, ApiError> {
-    let Path(id) = id?;
-    let Query(q) = query?;
     let wait = watch::wait_duration(q.wait)?;
     if state.store.flight(id).is_none() {
         return Err(ApiError::not_found("flight", id));
@@ -263,11 +260,9 @@ pub async fn get_flight(
 )]
 pub async fn flight_jobs(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
-    query: Result<Query<PageQuery>, axum::extract::rejection::QueryRejection>,
+    IdPath(id): IdPath,
+    ApiQuery(q): ApiQuery<PageQuery>,
 ) -> Result<Json<JobPage>, ApiError> {
-    let Path(id) = id?;
-    let Query(q) = query?;
     let limit = page_limit(q.limit)?;
     let jobs = state
         .store
@@ -300,9 +295,8 @@ pub async fn flight_jobs(
 )]
 pub async fn flight_events(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
     if state.store.flight(id).is_none() {
         return Err(ApiError::not_found("flight", id));
     }
@@ -356,12 +350,10 @@ async fn flight_results(
 )]
 pub async fn get_flight_results(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
-    query: Result<Query<ResultsQuery>, axum::extract::rejection::QueryRejection>,
+    IdPath(id): IdPath,
+    ApiQuery(q): ApiQuery<ResultsQuery>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
-    let Query(q) = query?;
     let format = results::negotiate(&headers)?;
     flight_results(state, id, format, q.partial.unwrap_or(false)).await
 }
@@ -378,11 +370,9 @@ pub async fn get_flight_results(
 )]
 pub async fn get_flight_results_csv(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
-    query: Result<Query<ResultsQuery>, axum::extract::rejection::QueryRejection>,
+    IdPath(id): IdPath,
+    ApiQuery(q): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
-    let Query(q) = query?;
     flight_results(state, id, Format::Csv, q.partial.unwrap_or(false)).await
 }
 
@@ -398,11 +388,9 @@ pub async fn get_flight_results_csv(
 )]
 pub async fn get_flight_results_geojson(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
-    query: Result<Query<ResultsQuery>, axum::extract::rejection::QueryRejection>,
+    IdPath(id): IdPath,
+    ApiQuery(q): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
-    let Query(q) = query?;
     flight_results(state, id, Format::GeoJson, q.partial.unwrap_or(false)).await
 }
 
@@ -417,9 +405,8 @@ pub async fn get_flight_results_geojson(
 )]
 pub async fn cancel_flight(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<Json<FlightView>, ApiError> {
-    let Path(id) = id?;
     let store = state.store.clone();
     tokio::task::spawn_blocking(move || store.cancel_flight(id))
         .await
@@ -442,9 +429,8 @@ pub async fn cancel_flight(
 )]
 pub async fn delete_flight(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<StatusCode, ApiError> {
-    let Path(id) = id?;
     let (store, data) = (state.store.clone(), state.data.clone());
     tokio::task::spawn_blocking(move || {
         let jobs = store.delete_flight(id)?;

@@ -1,12 +1,13 @@
 //! `/v1/jobs`: one frame in, its state, its results, cancel and delete.
 
-use axum::extract::{Path, Query, RawQuery, Request, State};
+use axum::extract::{RawQuery, Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use uuid::Uuid;
 
 use super::error::{ApiError, Problem};
+use super::extract::{ApiQuery, IdPath};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{flights::checked_params, results, watch, AppState};
@@ -118,9 +119,8 @@ pub async fn submit_job(
 )]
 pub async fn list_jobs(
     State(state): State<AppState>,
-    query: Result<Query<JobListQuery>, axum::extract::rejection::QueryRejection>,
+    ApiQuery(q): ApiQuery<JobListQuery>,
 ) -> Result<Json<JobPage>, ApiError> {
-    let Query(q) = query?;
     let limit = page_limit(q.limit)?;
     let items = state.store.jobs(&JobFilter {
         flight: q.flight,
@@ -154,11 +154,9 @@ fn page(mut items: Vec<JobView>, limit: usize) -> JobPage {
 )]
 pub async fn get_job(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
-    query: Result<Query<WaitQuery>, axum::extract::rejection::QueryRejection>,
+    IdPath(id): IdPath,
+    ApiQuery(q): ApiQuery<WaitQuery>,
 ) -> Result<Json<JobView>, ApiError> {
-    let Path(id) = id?;
-    let Query(q) = query?;
     let wait = watch::wait_duration(q.wait)?;
     if state.store.job(id).is_none() {
         return Err(ApiError::not_found("job", id));
@@ -186,9 +184,8 @@ pub async fn get_job(
 )]
 pub async fn job_events(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
     if state.store.job(id).is_none() {
         return Err(ApiError::not_found("job", id));
     }
@@ -243,10 +240,9 @@ async fn job_results(state: AppState, id: Uuid, format: Format) -> Result<Respon
 )]
 pub async fn get_job_results(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
     let format = results::negotiate(&headers)?;
     job_results(state, id, format).await
 }
@@ -263,9 +259,8 @@ pub async fn get_job_results(
 )]
 pub async fn get_job_results_csv(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
     job_results(state, id, Format::Csv).await
 }
 
@@ -281,9 +276,8 @@ pub async fn get_job_results_csv(
 )]
 pub async fn get_job_results_geojson(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<Response, ApiError> {
-    let Path(id) = id?;
     job_results(state, id, Format::GeoJson).await
 }
 
@@ -300,9 +294,8 @@ pub async fn get_job_results_geojson(
 )]
 pub async fn cancel_job(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<Json<JobView>, ApiError> {
-    let Path(id) = id?;
     let store = state.store.clone();
     let job = tokio::task::spawn_blocking(move || store.cancel_job(id))
         .await
@@ -322,9 +315,8 @@ pub async fn cancel_job(
 )]
 pub async fn delete_job(
     State(state): State<AppState>,
-    id: Result<Path<Uuid>, axum::extract::rejection::PathRejection>,
+    IdPath(id): IdPath,
 ) -> Result<StatusCode, ApiError> {
-    let Path(id) = id?;
     let (store, data) = (state.store.clone(), state.data.clone());
     tokio::task::spawn_blocking(move || {
         let job = store.delete_job(id)?;

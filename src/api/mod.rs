@@ -5,6 +5,7 @@
 //! the pipeline runs only on the worker pool.
 
 pub mod error;
+pub mod extract;
 pub mod flights;
 pub mod jobs;
 pub mod ops;

@@ -24,7 +24,10 @@ RUN useradd --system --uid 10001 --create-home gcp
 ENV GDAL_CACHEMAX=32 \
     OPENCV_IO_MAX_IMAGE_PIXELS=400000000 \
     GCP_TAGGER_LOG=info
+RUN mkdir /data && chown gcp /data
+VOLUME /data
+EXPOSE 8080
 USER gcp
 WORKDIR /home/gcp
 ENTRYPOINT ["/usr/bin/tini", "--", "/usr/local/bin/gcp-tagger"]
-CMD ["--help"]
+CMD ["serve", "--listen", "0.0.0.0:8080", "--data-dir", "/data", "--log-json"]

@@ -70,13 +70,7 @@ pub struct JobView {
 
 impl JobView {
     pub fn new(j: &JobRecord) -> JobView {
-        let fraction = if j.state.is_terminal() {
-            1.0
-        } else if j.tiles_total > 0 {
-            j.tiles_done as f64 / j.tiles_total as f64
-        } else {
-            0.0
-        };
+        let fraction = done_fraction(j);
         let base = format!("/v1/jobs/{}", j.id);
         JobView {
             id: j.id,
@@ -106,6 +100,17 @@ impl JobView {
                 self_: base,
             },
         }
+    }
+}
+
+/// How much of a job is done, 0.0 .. 1.0 (by tiles while it runs).
+fn done_fraction(j: &JobRecord) -> f64 {
+    if j.state.is_terminal() {
+        1.0
+    } else if j.tiles_total > 0 {
+        j.tiles_done as f64 / j.tiles_total as f64
+    } else {
+        0.0
     }
 }
 
@@ -145,7 +150,7 @@ impl FlightView {
         let mut done = 0.0;
         for j in jobs {
             counts.add(j.state);
-            done += JobView::new(j).progress.fraction;
+            done += done_fraction(j);
         }
         let state = counts.flight_state();
         let finished_at = (state == FlightState::Finished)

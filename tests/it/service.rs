@@ -244,7 +244,8 @@ fn canceling_stops_queued_and_running_jobs() {
     let first = body["jobs"][0]["id"].as_str().unwrap();
     // Wait until the first job runs, then cancel it.
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
-    while server.get_json(&format!("/v1/jobs/{first}"))["state"] != "running" {
+    // (On a fast machine it may even have ended; the asserts below allow it.)
+    while server.get_json(&format!("/v1/jobs/{first}"))["state"] == "queued" {
         assert!(std::time::Instant::now() < deadline);
         std::thread::sleep(std::time::Duration::from_millis(5));
     }

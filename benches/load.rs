@@ -7,17 +7,18 @@
 //! Run: `cargo bench --bench load` (frames are generated once into the
 //! target folder and reused). Under `cargo test` it does nothing.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use gcp_tagger::synth::{FileKind, FlightSpec};
-use reqwest::blocking::{multipart, Client};
 use serde_json::Value;
 
 mod common;
+// The integration tests' server helper: a real `serve` process on port 0.
+#[path = "../tests/it/server.rs"]
+mod server;
+use server::Server;
 
 const FRAMES: usize = 100;
 const MAX_RAM_GB: &str = "1";
@@ -45,7 +46,11 @@ fn main() {
         .collect();
     let megapixels = (spec.width * spec.height * FRAMES) as f64 / 1e6;
 
-    let cli_seconds = run_cli(&dir);
+    let (cli_seconds, cli_rss_kib) = common::run_detect(
+        &dir,
+        &dir.with_extension("cli.csv"),
+        &["--max-ram-gb", MAX_RAM_GB],
+    );
     let (server_seconds, peak_rss_kib, latencies) = run_server(&frames);
     let mut ms: Vec<f64> = latencies.iter().map(|d| d.as_secs_f64() * 1e3).collect();
     ms.sort_by(f64::total_cmp);
@@ -54,8 +59,9 @@ fn main() {
     println!("| measure | value |");
     println!("|---|---|");
     println!(
-        "| command line, {FRAMES} frames, --max-ram-gb {MAX_RAM_GB} | {:.1} MP/s |",
-        megapixels / cli_seconds
+        "| command line, {FRAMES} frames, --max-ram-gb {MAX_RAM_GB} | {:.1} MP/s, peak RSS {:.0} MiB |",
+        megapixels / cli_seconds,
+        cli_rss_kib as f64 / 1024.0
     );
     println!(
         "| service, one {FRAMES}-frame multipart flight (upload to last result) | {:.1} MP/s ({:.0}% of the command line) |",
@@ -75,65 +81,14 @@ fn main() {
     );
 }
 
-fn run_cli(dir: &Path) -> f64 {
-    let out = dir.with_extension("cli.csv");
-    let start = Instant::now();
-    let status = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
-        .arg("detect")
-        .arg(dir)
-        .args([
-            "--crs",
-            "EPSG:4326",
-            "--quiet",
-            "--max-ram-gb",
-            MAX_RAM_GB,
-            "--output",
-        ])
-        .arg(&out)
-        .status()
-        .expect("run gcp-tagger detect");
-    assert!(status.success());
-    start.elapsed().as_secs_f64()
-}
-
 /// Returns the seconds from the start of the upload to the flight's end,
 /// the server's peak RSS in KiB, and the status request latencies.
 fn run_server(frames: &[PathBuf]) -> (f64, u64, Vec<Duration>) {
     let data = tempfile::tempdir().expect("temp dir");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
-        .args([
-            "serve",
-            "--listen",
-            "127.0.0.1:0",
-            "--max-ram-gb",
-            MAX_RAM_GB,
-        ])
-        .arg("--data-dir")
-        .arg(data.path())
-        .env("GCP_TAGGER_LOG", "warn")
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("start gcp-tagger serve");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let base = line.trim().rsplit(' ').next().unwrap().to_string();
-    let client = Client::builder()
-        .timeout(Duration::from_secs(600))
-        .build()
-        .unwrap();
-
+    let server = Server::start(&data.path().join("d"), &["--max-ram-gb", MAX_RAM_GB]);
     let start = Instant::now();
-    let mut form = multipart::Form::new();
-    for f in frames {
-        form = form.file("frame", f).unwrap();
-    }
-    let r = client
-        .post(format!("{base}/v1/flights?crs=EPSG:4326"))
-        .multipart(form)
-        .send()
-        .unwrap();
+    let paths: Vec<&Path> = frames.iter().map(PathBuf::as_path).collect();
+    let r = server.post_files("/v1/flights?crs=EPSG:4326", &paths);
     assert_eq!(r.status(), 201);
     let body: Value = r.json().unwrap();
     let flight = body["flight"]["id"].as_str().unwrap().to_string();
@@ -147,7 +102,7 @@ fn run_server(frames: &[PathBuf]) -> (f64, u64, Vec<Duration>) {
             let mut out = Vec::new();
             while !done.load(Ordering::SeqCst) {
                 let t = Instant::now();
-                let r = client.get(format!("{base}/v1/jobs/{job}")).send().unwrap();
+                let r = server.get(&format!("/v1/jobs/{job}"));
                 assert_eq!(r.status(), 200);
                 let _ = r.bytes();
                 out.push(t.elapsed());
@@ -155,30 +110,17 @@ fn run_server(frames: &[PathBuf]) -> (f64, u64, Vec<Duration>) {
             }
             out
         });
-        loop {
-            let v: Value = client
-                .get(format!("{base}/v1/flights/{flight}?wait=60"))
-                .send()
-                .unwrap()
-                .json()
-                .unwrap();
-            if v["state"] == "finished" {
-                assert_eq!(v["jobs"]["succeeded"], FRAMES as u64, "{v}");
-                break;
-            }
-        }
+        let v = server.wait_flight(&flight);
+        assert_eq!(v["jobs"]["succeeded"], FRAMES as u64, "{v}");
         done.store(true, Ordering::SeqCst);
         poller.join().unwrap()
     });
     let seconds = start.elapsed().as_secs_f64();
-    let status = std::fs::read_to_string(format!("/proc/{}/status", child.id())).unwrap();
+    let status = std::fs::read_to_string(format!("/proc/{}/status", server.pid())).unwrap();
     let hwm_kib = status
         .lines()
         .find_map(|l| l.strip_prefix("VmHWM:"))
         .and_then(|v| v.split_whitespace().next()?.parse().ok())
         .unwrap_or(0);
-    // SAFETY: kill(2) on our own child.
-    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
-    let _ = child.wait();
     (seconds, hwm_kib, latencies)
 }

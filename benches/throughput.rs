@@ -6,13 +6,11 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
-use std::time::Instant;
 
 use gcp_tagger::synth::{FileKind, FlightSpec};
 
 mod common;
-use common::generate;
+use common::{generate, run_detect};
 
 struct Set {
     name: &'static str,
@@ -64,7 +62,7 @@ fn main() {
         }
         for threads in [1, 2] {
             let out = dir.with_extension(format!("t{threads}.csv"));
-            let (seconds, rss_kib) = run_detect(&dir, &out, threads);
+            let (seconds, rss_kib) = run_detect(&dir, &out, &["--threads", &threads.to_string()]);
             let mp = (set.spec.width * set.spec.height * set.spec.frames) as f64 / 1e6;
             let (recall, median, p95) = accuracy(&dir.join("truth.csv"), &out);
             println!(
@@ -77,33 +75,6 @@ fn main() {
             );
         }
     }
-}
-
-/// Runs the release binary at default settings; returns wall seconds and the
-/// child's peak RSS in KiB (from wait4's rusage).
-fn run_detect(dir: &Path, out: &Path, threads: usize) -> (f64, i64) {
-    let start = Instant::now();
-    let child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
-        .arg("detect")
-        .arg(dir)
-        .args([
-            "--crs",
-            "EPSG:4326",
-            "--quiet",
-            "--threads",
-            &threads.to_string(),
-            "--output",
-        ])
-        .arg(out)
-        .spawn()
-        .expect("spawn gcp-tagger");
-    let mut status = 0;
-    // SAFETY: plain libc call on our own child's pid with valid out-pointers.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
-    assert_eq!(pid, child.id() as i32, "wait4");
-    assert_eq!(status, 0, "detect failed");
-    (start.elapsed().as_secs_f64(), usage.ru_maxrss)
 }
 
 /// Recall and centre-error quantiles of `out` against `truth` (both CSV,

@@ -2,6 +2,7 @@
 
 use std::path::Path;
 use std::process::Command;
+use std::time::Instant;
 
 use gcp_tagger::synth::FlightSpec;
 
@@ -34,4 +35,27 @@ pub fn generate(dir: &Path, spec: &FlightSpec) {
         .status()
         .expect("run gcp-tagger sample");
     assert!(status.success(), "sample generation failed");
+}
+
+/// Runs `gcp-tagger detect DIR --crs EPSG:4326 --quiet EXTRA... --output OUT`
+/// (the release binary); returns wall seconds and the child's peak RSS in
+/// KiB (from wait4's rusage).
+pub fn run_detect(dir: &Path, out: &Path, extra: &[&str]) -> (f64, i64) {
+    let start = Instant::now();
+    let child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .arg("detect")
+        .arg(dir)
+        .args(["--crs", "EPSG:4326", "--quiet"])
+        .args(extra)
+        .arg("--output")
+        .arg(out)
+        .spawn()
+        .expect("spawn gcp-tagger");
+    let mut status = 0;
+    // SAFETY: plain libc call on our own child's pid with valid out-pointers.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as i32, "wait4");
+    assert_eq!(status, 0, "detect failed");
+    (start.elapsed().as_secs_f64(), usage.ru_maxrss)
 }

@@ -143,10 +143,6 @@ impl StateCounts {
         } += 1;
     }
 
-    pub fn total(&self) -> u32 {
-        self.queued + self.running + self.succeeded + self.failed + self.canceled
-    }
-
     pub fn flight_state(&self) -> FlightState {
         if self.queued + self.running == 0 {
             FlightState::Finished

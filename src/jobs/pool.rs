@@ -22,9 +22,10 @@ use super::store::{Claim, Outcome, Store};
 const IDLE_WAIT: Duration = Duration::from_millis(250);
 
 /// Memory of the service's async side (HTTP connections, upload buffers,
-/// the job store) on top of the pipeline's base: the load benchmark peaks at
-/// 235 MiB with 2 workers on 4000x3000 frames where `detect` peaks at
-/// 214 MiB, so ~21 MiB, rounded up.
+/// the job store) on top of the pipeline's base. The load benchmark measured
+/// 236 MiB peak for the service against 227 MiB for `detect` on the same
+/// 100 frames and limit (~9 MiB with one upload); the rest is headroom for
+/// several uploads streaming at once (64 KiB-scale buffers each).
 pub const SERVICE_BASE_BYTES: u64 = 24 * MIB;
 
 /// Pool settings.

@@ -2,4 +2,4 @@
 
 pub mod spool;
 
-pub use spool::{DataDir, SpoolError, SpooledFrame};
+pub use spool::DataDir;

@@ -80,28 +80,6 @@ impl DataDir {
     }
 }
 
-/// An upload written to the spool and recognised as an image.
-#[derive(Debug)]
-pub struct SpooledFrame {
-    /// Name for results (sanitized file name).
-    pub image: String,
-    /// Extension matching the content: `jpg`, `tif` or `png`.
-    pub ext: &'static str,
-    pub tmp_path: PathBuf,
-    pub bytes: u64,
-}
-
-/// Why an upload was not taken.
-#[derive(Debug, thiserror::Error)]
-pub enum SpoolError {
-    #[error("{name}: the file is empty")]
-    Empty { name: String },
-    #[error("{name}: not a JPEG, TIFF or PNG image (first bytes {magic})")]
-    NotAnImage { name: String, magic: String },
-    #[error("{name}: larger than the {limit_mib} MiB limit per frame")]
-    TooLarge { name: String, limit_mib: u64 },
-}
-
 /// Recognises a supported image by its first bytes.
 pub fn sniff_image(head: &[u8]) -> Option<&'static str> {
     if head.starts_with(&[0xFF, 0xD8, 0xFF]) {

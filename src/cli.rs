@@ -70,7 +70,7 @@ pub struct DetectArgs {
     /// Frames (JPEG, TIFF/GeoTIFF, PNG) or folders of them.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
-    /// Target types to look for, comma separated: apriltag, aruco.
+    /// Target types to look for, comma separated: apriltag, aruco, crosshair (white cross on black, 2x2 checker), circle (bullseye, disc on a board).
     #[arg(
         long,
         value_delimiter = ',',
@@ -111,6 +111,12 @@ pub struct DetectArgs {
     /// Smallest target side in pixels that is searched for.
     #[arg(long, default_value_t = 16.0, env = "GCP_TAGGER_MIN_TARGET_PX")]
     pub min_target_px: f64,
+    /// Physical size of printed targets in metres (square side or outer diameter); with the GSD it narrows the sizes searched to x/÷1.5 of the expected.
+    #[arg(long, env = "GCP_TAGGER_TARGET_SIZE_M")]
+    pub target_size_m: Option<f64>,
+    /// Expected ground sample distance in cm per pixel (default: from each frame's georeference, when it has one).
+    #[arg(long, env = "GCP_TAGGER_GSD_CM")]
+    pub gsd_cm: Option<f64>,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
@@ -186,6 +192,8 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
             apriltag_family: args.apriltag_family,
             min_target_px: args.min_target_px,
             max_refine_shift_px: args.pixel_tolerance,
+            target_size_m: args.target_size_m,
+            gsd_cm: args.gsd_cm,
         },
         args.tile_size,
         args.max_target_px,

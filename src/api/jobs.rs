@@ -22,7 +22,7 @@ use crate::pipeline::output::Format;
 pub struct UploadQuery {
     /// Name of the frame in results (raw bodies; multipart parts carry their file name).
     name: Option<String>,
-    /// Target types, comma separated: `apriltag`, `aruco` (default `apriltag`).
+    /// Target types, comma separated: `apriltag`, `aruco`, `crosshair`, `circle` (default `apriltag`).
     marker_types: Option<String>,
     /// ArUco dictionary, e.g. `4X4_50` (default), `5X5_100`, `ARUCO_ORIGINAL`.
     dictionary: Option<String>,
@@ -38,6 +38,10 @@ pub struct UploadQuery {
     max_target_px: Option<usize>,
     /// Smallest target side in pixels (default 16).
     min_target_px: Option<f64>,
+    /// Printed targets' physical size in metres (square side, outer diameter); with the GSD it narrows the size range.
+    target_size_m: Option<f64>,
+    /// Expected ground sample distance in cm per pixel (default: from the frame's georeference).
+    gsd_cm: Option<f64>,
 }
 
 /// A frame as a multipart part.

@@ -15,7 +15,7 @@ use crate::pipeline::georef::TargetCrs;
 /// WGS84 (`EPSG:4326`) so a bare upload works.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct JobParams {
-    /// Target types, comma separated: `apriltag`, `aruco`.
+    /// Target types, comma separated: `apriltag`, `aruco`, `crosshair`, `circle`.
     #[schema(example = "apriltag")]
     pub marker_types: String,
     /// ArUco dictionary (used when `aruco` is asked for).
@@ -36,6 +36,11 @@ pub struct JobParams {
     pub max_target_px: usize,
     /// Smallest target side in pixels.
     pub min_target_px: f64,
+    /// Printed targets' physical size in metres (square side, outer diameter).
+    pub target_size_m: Option<f64>,
+    /// Expected ground sample distance, cm per pixel (default: from the
+    /// frame's georeference when it has one).
+    pub gsd_cm: Option<f64>,
 }
 
 impl Default for JobParams {
@@ -49,6 +54,8 @@ impl Default for JobParams {
             tile_size: DEFAULT_TILE_SIZE,
             max_target_px: DEFAULT_MAX_TARGET_PX,
             min_target_px: 16.0,
+            target_size_m: None,
+            gsd_cm: None,
         }
     }
 }
@@ -63,6 +70,8 @@ pub const PARAM_KEYS: &[&str] = &[
     "tile_size",
     "max_target_px",
     "min_target_px",
+    "target_size_m",
+    "gsd_cm",
 ];
 
 impl JobParams {
@@ -98,6 +107,10 @@ impl JobParams {
                 "min_target_px" => {
                     p.min_target_px = value.parse().map_err(|_| number("a number"))?
                 }
+                "target_size_m" => {
+                    p.target_size_m = Some(value.parse().map_err(|_| number("a number"))?)
+                }
+                "gsd_cm" => p.gsd_cm = Some(value.parse().map_err(|_| number("a number"))?),
                 _ => unreachable!("every key in PARAM_KEYS is handled"),
             }
         }
@@ -136,6 +149,8 @@ impl JobParams {
                 apriltag_family: family,
                 min_target_px: self.min_target_px,
                 max_refine_shift_px: self.pixel_tolerance,
+                target_size_m: self.target_size_m,
+                gsd_cm: self.gsd_cm,
             },
             self.tile_size,
             self.max_target_px,

@@ -55,6 +55,8 @@ mod tests {
             refinement: Refinement::Refined,
             bit_errors: Some(0),
             decision_margin: Some(0.4),
+            fit_rms_px: None,
+            confidence: 1.0,
             tile_margin: margin,
         }
     }

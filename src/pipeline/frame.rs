@@ -3,7 +3,7 @@
 
 use opencv::core::{Mat, CV_8UC1};
 
-use super::detect::{build_detectors, DetectError, Detection, DetectorConfig};
+use super::detect::{build_detectors, DetectError, Detection, DetectorConfig, SizeRange};
 use super::georef::{TargetCrs, Transformer, WGS84};
 use super::raster::{RasterError, RasterFrame};
 use super::tiles::TileGrid;
@@ -77,6 +77,16 @@ impl FrameOptions {
                 "min_target_px",
                 format!("{min} must be at least 8 and at most max_target_px {max_target_px}"),
             );
+        }
+        for (field, value) in [
+            ("target_size_m", detector.target_size_m),
+            ("gsd_cm", detector.gsd_cm),
+        ] {
+            if let Some(v) = value {
+                if !(v.is_finite() && v > 0.0) {
+                    return bad(field, format!("{v} must be a positive number"));
+                }
+            }
         }
         if let Some(t) = detector.max_refine_shift_px {
             if !(t.is_finite() && t > 0.0 && t <= max_target_px as f64) {
@@ -167,7 +177,9 @@ pub fn detect_frame(
     let header = frame.header().clone();
     let (w, h) = (header.width, header.height);
     let grid = TileGrid::new(w, h, options.tile_size, options.overlap());
-    let mut detectors = build_detectors(&options.detector)?;
+    let frame_gsd = header.georeference.as_ref().and_then(|g| g.ground_m_per_px);
+    let sizes = SizeRange::for_frame(&options.detector, options.max_target_px as f64, frame_gsd);
+    let mut detectors = build_detectors(&options.detector, sizes)?;
     frame.prepare_stretch()?;
 
     let mut strip = vec![0u8; w * grid.tile_h];

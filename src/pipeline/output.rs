@@ -15,8 +15,8 @@ const DEGREE_DECIMALS: usize = 9;
 
 /// The CSV header; every column is computed for every row or left empty
 /// where it does not apply (world fields of frames without georeference,
-/// bit errors of non-coded targets).
-pub const CSV_HEADER: &str = "image,marker_type,marker_id,px_x,px_y,world_x,world_y,crs,size_px,refine_shift_px,refinement,bit_errors,decision_margin,at_edge";
+/// bit errors and decision margin of printed targets, fit RMS of coded ones).
+pub const CSV_HEADER: &str = "image,marker_type,marker_id,px_x,px_y,world_x,world_y,crs,size_px,refine_shift_px,refinement,bit_errors,decision_margin,fit_rms_px,confidence,at_edge";
 
 /// Output formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -81,7 +81,7 @@ pub fn to_csv(frames: &[FrameResult], crs: &TargetCrs) -> String {
             };
             let _ = writeln!(
                 out,
-                "{},{},{},{:.p$},{:.p$},{},{},{},{:.2},{:.3},{},{},{},{}",
+                "{},{},{},{:.p$},{:.p$},{},{},{},{:.2},{:.3},{},{},{},{},{:.3},{}",
                 csv_field(&frame.image),
                 d.marker_type,
                 opt(d.marker_id),
@@ -97,6 +97,8 @@ pub fn to_csv(frames: &[FrameResult], crs: &TargetCrs) -> String {
                 d.decision_margin
                     .map(|m| format!("{m:.3}"))
                     .unwrap_or_default(),
+                d.fit_rms_px.map(|m| format!("{m:.3}")).unwrap_or_default(),
+                d.confidence,
                 t.at_edge,
                 p = PX_DECIMALS,
             );
@@ -179,6 +181,10 @@ fn feature(out: &mut String, image: &str, t: &Target, crs: &TargetCrs) {
     if let Some(m) = d.decision_margin {
         props.push(format!("\"decision_margin\":{m:.3}"));
     }
+    if let Some(m) = d.fit_rms_px {
+        props.push(format!("\"fit_rms_px\":{m:.3}"));
+    }
+    props.push(format!("\"confidence\":{:.3}", d.confidence));
     props.push(format!("\"at_edge\":{}", t.at_edge));
     let _ = write!(
         out,

@@ -6,6 +6,7 @@
 //! Pixel convention: pixel (i, j) covers [i-0.5, i+0.5] x [j-0.5, j+0.5], so
 //! truth is in OpenCV coordinates (centre of the top-left pixel is 0,0).
 
+mod printed;
 mod render;
 mod write;
 
@@ -13,6 +14,7 @@ use std::fmt;
 use std::path::Path;
 use std::str::FromStr;
 
+pub use printed::{PrintedDesign, PrintedSpec};
 pub use render::{render, Clutter, GreyImage, MarkerSpec, Scene, Truth};
 pub use write::{write_image, GeoSpec, SampleFormat};
 
@@ -154,8 +156,108 @@ pub fn random_scene(width: usize, height: usize, markers: usize, seed: u64) -> S
             squares: 30,
             circles: 20,
             stripes: 6,
+            lookalikes: 0,
         },
         markers: specs,
+        printed: Vec::new(),
+        motion_blur: (0.0, 0.0),
+    }
+}
+
+/// A frame of `count` printed targets of `mode` (crosshair: crosses and
+/// checkers; circle: bullseyes and discs) with sizes in `sizes`, on a grid
+/// with jitter, under the conditions aerial frames show: any rotation, mild
+/// perspective, print contrast down to 40%, a shadow edge across a quarter
+/// of the targets, defocus blur 0.6-1.4 px, motion blur up to 3 px on odd
+/// seeds, noise 2-5 grey levels, textured ground and look-alike clutter.
+pub fn printed_scene(
+    width: usize,
+    height: usize,
+    count: usize,
+    mode: MarkerType,
+    sizes: (f64, f64),
+    seed: u64,
+) -> Scene {
+    let mut rng = Rng::new(seed);
+    let cols = ((count as f64 * width as f64 / height as f64).sqrt().ceil() as usize).max(1);
+    let rows = count.div_ceil(cols);
+    let (cw, ch) = (width as f64 / cols as f64, height as f64 / rows as f64);
+    let printed = (0..count)
+        .map(|i| {
+            let (c, r) = (i % cols, i / cols);
+            let design = match (mode, i % 2) {
+                (MarkerType::Circle, 0) => PrintedDesign::Bullseye,
+                (MarkerType::Circle, _) => PrintedDesign::Disc {
+                    white_on_black: rng.uniform() < 0.5,
+                },
+                (_, 0) => PrintedDesign::Cross {
+                    bar: rng.range(0.12, 0.3),
+                    marking: rng.uniform() < 0.5,
+                },
+                _ => PrintedDesign::Checker,
+            };
+            PrintedSpec {
+                design,
+                center: (
+                    cw * (c as f64 + 0.5) + rng.range(-0.12, 0.12) * cw,
+                    ch * (r as f64 + 0.5) + rng.range(-0.12, 0.12) * ch,
+                ),
+                size_px: rng.range(sizes.0, sizes.1),
+                rotation_deg: rng.range(0.0, 360.0),
+                perspective: rng.range(0.0, 0.05),
+                contrast: if rng.uniform() < 0.3 {
+                    rng.range(0.4, 0.6)
+                } else {
+                    rng.range(0.8, 1.0)
+                },
+                shadow: rng.uniform() < 0.25,
+            }
+        })
+        .collect();
+    Scene {
+        width,
+        height,
+        seed,
+        blur_sigma: rng.range(0.6, 1.4),
+        noise_sigma: rng.range(2.0, 5.0),
+        gradient: 0.3,
+        shadows: 1,
+        clutter: Clutter {
+            squares: 10,
+            circles: 8,
+            stripes: 3,
+            lookalikes: 6,
+        },
+        markers: Vec::new(),
+        printed,
+        motion_blur: if seed % 2 == 1 {
+            (rng.range(1.5, 3.0), rng.range(0.0, 180.0))
+        } else {
+            (0.0, 0.0)
+        },
+    }
+}
+
+/// A frame of look-alikes only: no target, every kind of clutter.
+pub fn clutter_scene(width: usize, height: usize, seed: u64) -> Scene {
+    let area = (width * height) as f64 / 1e6;
+    Scene {
+        width,
+        height,
+        seed,
+        blur_sigma: 0.9,
+        noise_sigma: 3.0,
+        gradient: 0.3,
+        shadows: 2,
+        clutter: Clutter {
+            squares: (25.0 * area) as usize,
+            circles: (20.0 * area) as usize,
+            stripes: (4.0 * area) as usize,
+            lookalikes: (40.0 * area) as usize,
+        },
+        markers: Vec::new(),
+        printed: Vec::new(),
+        motion_blur: (0.0, 0.0),
     }
 }
 

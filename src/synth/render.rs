@@ -3,14 +3,15 @@
 use crate::pipeline::detect::geometry::{self, Pt};
 use crate::pipeline::detect::{marker_bits, MarkerType};
 
+use super::printed::{self, PrintedSpec};
 use super::Rng;
 
 /// Subsamples per pixel side when painting shapes: 8x8 = 64 samples keeps
 /// the area-coverage error of an edge under 1/64 of a pixel.
 const SUPERSAMPLE: usize = 8;
 /// Printed target paper: white and black reflectance.
-const PAPER_WHITE: f32 = 0.92;
-const PAPER_BLACK: f32 = 0.07;
+pub(super) const PAPER_WHITE: f32 = 0.92;
+pub(super) const PAPER_BLACK: f32 = 0.07;
 
 /// A grey image, row-major, values in [0, 1].
 #[derive(Debug, Clone)]
@@ -45,6 +46,10 @@ pub struct Clutter {
     pub circles: usize,
     /// Long bright bars (road markings).
     pub stripes: usize,
+    /// Look-alikes of printed targets: solar-panel grids, paving checkers,
+    /// road-marking crosses, manholes with rims, pyramid roofs, tanks on
+    /// roofs, cars (see `printed::lookalike`).
+    pub lookalikes: usize,
 }
 
 /// A frame to render.
@@ -63,6 +68,10 @@ pub struct Scene {
     pub shadows: usize,
     pub clutter: Clutter,
     pub markers: Vec<MarkerSpec>,
+    /// Printed targets without a code (crosshair, checker, circles).
+    pub printed: Vec<PrintedSpec>,
+    /// Linear motion blur: length in pixels (0 = none) and direction in degrees.
+    pub motion_blur: (f64, f64),
 }
 
 /// Where a marker really is.
@@ -91,6 +100,9 @@ pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
     for spec in &scene.markers {
         truths.push(place_marker(&mut img, spec, &mut rng)?);
     }
+    for (i, spec) in scene.printed.iter().enumerate() {
+        truths.push(printed::place(&mut img, spec, i as u32, &mut rng));
+    }
     for _ in 0..scene.shadows {
         shadow(&mut img, &mut rng);
     }
@@ -103,6 +115,9 @@ pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
     }
     if scene.blur_sigma > 0.0 {
         gaussian_blur(&mut img, scene.blur_sigma);
+    }
+    if scene.motion_blur.0 > 0.0 {
+        motion_blur(&mut img, scene.motion_blur.0, scene.motion_blur.1);
     }
     if scene.noise_sigma > 0.0 {
         let s = (scene.noise_sigma / 255.0) as f32;
@@ -158,7 +173,11 @@ impl ValueNoise {
 
 /// Paints a shape over `bbox` with area anti-aliasing: `shade(x, y)` gives
 /// the shape's value at an image point, or None outside the shape.
-fn paint(img: &mut GreyImage, bbox: (f64, f64, f64, f64), shade: impl Fn(f64, f64) -> Option<f32>) {
+pub(super) fn paint(
+    img: &mut GreyImage,
+    bbox: (f64, f64, f64, f64),
+    shade: impl Fn(f64, f64) -> Option<f32>,
+) {
     let x0 = (bbox.0.floor() as i64).max(0) as usize;
     let y0 = (bbox.1.floor() as i64).max(0) as usize;
     let x1 = ((bbox.2.ceil() as i64).max(0) as usize).min(img.width - 1);
@@ -187,7 +206,7 @@ fn paint(img: &mut GreyImage, bbox: (f64, f64, f64, f64), shade: impl Fn(f64, f6
     }
 }
 
-fn bbox_of(points: &[Pt]) -> (f64, f64, f64, f64) {
+pub(super) fn bbox_of(points: &[Pt]) -> (f64, f64, f64, f64) {
     points
         .iter()
         .fold((f64::MAX, f64::MAX, f64::MIN, f64::MIN), |b, p| {
@@ -195,7 +214,7 @@ fn bbox_of(points: &[Pt]) -> (f64, f64, f64, f64) {
         })
 }
 
-fn invert(h: &[f64; 9]) -> [f64; 9] {
+pub(super) fn invert(h: &[f64; 9]) -> [f64; 9] {
     let [a, b, c, d, e, f, g, hh, i] = *h;
     let det = a * (e * i - f * hh) - b * (d * i - f * g) + c * (d * hh - e * g);
     [
@@ -214,17 +233,32 @@ fn invert(h: &[f64; 9]) -> [f64; 9] {
 /// The marker's outer-border corners for its centre, size, rotation and
 /// perspective jitter.
 fn marker_corners(spec: &MarkerSpec, rng: &mut Rng) -> [Pt; 4] {
-    let (s, c) = spec.rotation_deg.to_radians().sin_cos();
-    let half = spec.side_px / 2.0;
+    square_corners(
+        spec.center,
+        spec.side_px,
+        spec.rotation_deg,
+        spec.perspective,
+        rng,
+    )
+}
+
+/// Corners of a square of `side` px around `center`, rotated, each moved by
+/// up to `perspective` x side: a mild perspective view.
+pub(super) fn square_corners(
+    center: Pt,
+    side: f64,
+    rotation_deg: f64,
+    perspective: f64,
+    rng: &mut Rng,
+) -> [Pt; 4] {
+    let (s, c) = rotation_deg.to_radians().sin_cos();
+    let half = side / 2.0;
     let unit = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)];
     unit.map(|(u, v)| {
-        let jx = rng.range(-1.0, 1.0) * spec.perspective * spec.side_px;
-        let jy = rng.range(-1.0, 1.0) * spec.perspective * spec.side_px;
+        let jx = rng.range(-1.0, 1.0) * perspective * side;
+        let jy = rng.range(-1.0, 1.0) * perspective * side;
         let (x, y) = (u * half, v * half);
-        (
-            spec.center.0 + c * x - s * y + jx,
-            spec.center.1 + s * x + c * y + jy,
-        )
+        (center.0 + c * x - s * y + jx, center.1 + s * x + c * y + jy)
     })
 }
 
@@ -312,6 +346,9 @@ fn clutter(img: &mut GreyImage, clutter: &Clutter, rng: &mut Rng) {
             },
         );
     }
+    for _ in 0..clutter.lookalikes {
+        printed::lookalike(img, rng);
+    }
     for _ in 0..clutter.stripes {
         let (len, width) = (rng.range(150.0, 600.0), rng.range(8.0, 20.0));
         let c = (rng.range(0.0, w), rng.range(0.0, h));
@@ -372,6 +409,40 @@ fn gaussian_blur(img: &mut GreyImage, sigma: f64) {
                 acc += kv * tmp[(yy * w + x) as usize];
             }
             img.data[(y * w + x) as usize] = acc;
+        }
+    }
+}
+
+/// Linear motion blur: the mean of `length` px of positions along `angle_deg`
+/// (bilinear), a symmetric kernel like a camera moving during exposure.
+fn motion_blur(img: &mut GreyImage, length: f64, angle_deg: f64) {
+    let (s, c) = angle_deg.to_radians().sin_cos();
+    let n = (length.ceil() as usize).max(1) * 2 + 1;
+    let offsets: Vec<Pt> = (0..n)
+        .map(|k| {
+            let t = -length / 2.0 + length * k as f64 / (n - 1) as f64;
+            (c * t, s * t)
+        })
+        .collect();
+    let (w, h) = (img.width, img.height);
+    let src = img.data.clone();
+    let at = |x: f64, y: f64| -> f32 {
+        let x = x.clamp(0.0, (w - 1) as f64);
+        let y = y.clamp(0.0, (h - 1) as f64);
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let top = src[y0 * w + x0] * (1.0 - fx) + src[y0 * w + x1] * fx;
+        let bottom = src[y1 * w + x0] * (1.0 - fx) + src[y1 * w + x1] * fx;
+        top * (1.0 - fy) + bottom * fy
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let sum: f32 = offsets
+                .iter()
+                .map(|o| at(x as f64 + o.0, y as f64 + o.1))
+                .sum();
+            img.data[y * w + x] = sum / n as f32;
         }
     }
 }

@@ -6,5 +6,6 @@ mod support;
 mod accuracy;
 mod cli;
 mod georef;
+mod printed;
 mod service;
 mod tiling;

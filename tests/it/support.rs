@@ -107,8 +107,11 @@ pub fn grid_scene(
             squares: 15,
             circles: 10,
             stripes: 4,
+            lookalikes: 0,
         },
         markers,
+        printed: Vec::new(),
+        motion_blur: (0.0, 0.0),
     }
 }
 
@@ -131,7 +134,7 @@ pub fn match_truth(targets: &[Target], truth: &[Truth]) -> Matching {
             .filter(|(i, d)| {
                 !used[*i]
                     && d.detection.marker_type == t.marker_type
-                    && d.detection.marker_id == Some(t.id)
+                    && (d.detection.marker_id == Some(t.id) || !t.marker_type.is_coded())
                     && dist(d.detection.center, t.center) < t.side_px / 2.0
             })
             .min_by(|a, b| {

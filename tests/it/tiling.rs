@@ -77,6 +77,8 @@ fn targets_on_seams_and_edges_are_found_once() {
         shadows: 0,
         clutter: Clutter::default(),
         markers,
+        printed: Vec::new(),
+        motion_blur: (0.0, 0.0),
     };
     let (path, truth) = write_scene(dir.path(), "seams.png", &scene, SampleFormat::Png, None);
     let r = run_one(&path, &opts);
@@ -108,8 +110,11 @@ fn clutter_only_frames_have_no_detections() {
                 squares: 250,
                 circles: 120,
                 stripes: 30,
+                lookalikes: 0,
             },
             markers: vec![],
+            printed: Vec::new(),
+            motion_blur: (0.0, 0.0),
         };
         let (path, _) = write_scene(
             dir.path(),

@@ -4,8 +4,12 @@
 //! Detectors hold OpenCV objects that are Send but not Sync: a worker builds
 //! its own set per frame with [`build_detectors`] (cheap).
 
+mod blobs;
+mod circle;
+mod crosshair;
 mod fiducial;
 pub mod geometry;
+mod profile;
 pub mod refine;
 
 use std::fmt;
@@ -13,6 +17,8 @@ use std::str::FromStr;
 
 use opencv::core::Mat;
 
+pub use circle::CircleDetector;
+pub use crosshair::CrosshairDetector;
 pub use fiducial::{marker_bits, AprilTagFamily, ArucoDictionary, FiducialDetector};
 
 /// Why a tile could not be searched.
@@ -33,17 +39,33 @@ pub struct DetectError {
 pub enum MarkerType {
     AprilTag,
     Aruco,
+    /// Printed, no code: a white cross on a black square, or a 2x2 checker.
+    Crosshair,
+    /// Printed, no code: a bullseye, or a disc on a square board.
+    Circle,
 }
 
 impl MarkerType {
-    pub const ALL: &'static [MarkerType] = &[MarkerType::AprilTag, MarkerType::Aruco];
+    pub const ALL: &'static [MarkerType] = &[
+        MarkerType::AprilTag,
+        MarkerType::Aruco,
+        MarkerType::Crosshair,
+        MarkerType::Circle,
+    ];
 
     /// The name used on the command line and in outputs.
     pub fn as_str(self) -> &'static str {
         match self {
             MarkerType::AprilTag => "apriltag",
             MarkerType::Aruco => "aruco",
+            MarkerType::Crosshair => "crosshair",
+            MarkerType::Circle => "circle",
         }
+    }
+
+    /// Whether the target carries an id.
+    pub fn is_coded(self) -> bool {
+        matches!(self, MarkerType::AprilTag | MarkerType::Aruco)
     }
 }
 
@@ -111,6 +133,14 @@ pub struct Detection {
     /// cell's mean from the threshold, as a fraction of the black-white
     /// contrast (0 = ambiguous, 0.5 = perfect).
     pub decision_margin: Option<f64>,
+    /// Printed targets: RMS distance, in pixels, of the subpixel edge points
+    /// from the fitted lines or ellipse.
+    pub fit_rms_px: Option<f64>,
+    /// How sure the detector is, 0..1: for coded targets from the decision
+    /// margin, bit errors and refinement; for printed targets from the share
+    /// of profiles that found their edge, the fit residual, the contrast and
+    /// (crosshair) the symmetry of the arms.
+    pub confidence: f64,
     /// Distance from the target to the nearest inner tile border; used only to
     /// pick the best copy when overlapping tiles both see a target (so it is
     /// not stored with results; infinite when no border is a seam).
@@ -143,6 +173,51 @@ pub struct DetectorConfig {
     /// Largest corner move accepted from subpixel refinement, in pixels;
     /// `None` scales it with the marker (see `fiducial`).
     pub max_refine_shift_px: Option<f64>,
+    /// Printed targets' physical size in metres (square side, outer
+    /// diameter); with the ground sample distance it narrows the size range.
+    pub target_size_m: Option<f64>,
+    /// Expected ground sample distance in cm per pixel; `None` takes it from
+    /// the frame's georeference when that is in metres.
+    pub gsd_cm: Option<f64>,
+}
+
+/// Target sizes, in pixels, a detector accepts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SizeRange {
+    pub min_px: f64,
+    pub max_px: f64,
+}
+
+/// The ground sample distance varies across a frame and a flight (terrain
+/// height, tilt): the expected size in pixels is trusted to this factor.
+pub const GSD_SIZE_TOLERANCE: f64 = 1.5;
+
+impl SizeRange {
+    /// The range for a frame: `min_target_px..=max_target_px`, narrowed to
+    /// the expected size (x/÷ [`GSD_SIZE_TOLERANCE`]) when the physical
+    /// target size and the GSD (given, or else `frame_gsd_m`) are known.
+    pub fn for_frame(
+        config: &DetectorConfig,
+        max_target_px: f64,
+        frame_gsd_m: Option<f64>,
+    ) -> SizeRange {
+        let mut range = SizeRange {
+            min_px: config.min_target_px,
+            max_px: max_target_px,
+        };
+        let gsd_m = config.gsd_cm.map(|g| g / 100.0).or(frame_gsd_m);
+        if let (Some(size), Some(gsd)) = (config.target_size_m, gsd_m) {
+            let expected = size / gsd;
+            range.min_px = range.min_px.max(expected / GSD_SIZE_TOLERANCE);
+            range.max_px = range.max_px.min(expected * GSD_SIZE_TOLERANCE);
+        }
+        range
+    }
+
+    /// Whether a measured size fits, with 15% slack for the measurement.
+    pub fn accepts(&self, size_px: f64) -> bool {
+        size_px >= self.min_px / 1.15 && size_px <= self.max_px * 1.15
+    }
 }
 
 impl Default for DetectorConfig {
@@ -153,12 +228,17 @@ impl Default for DetectorConfig {
             apriltag_family: AprilTagFamily::default(),
             min_target_px: 16.0,
             max_refine_shift_px: None,
+            target_size_m: None,
+            gsd_cm: None,
         }
     }
 }
 
 /// Builds one detector per requested mode, on the calling thread.
-pub fn build_detectors(config: &DetectorConfig) -> opencv::Result<Vec<Box<dyn Detector>>> {
+pub fn build_detectors(
+    config: &DetectorConfig,
+    sizes: SizeRange,
+) -> opencv::Result<Vec<Box<dyn Detector>>> {
     let mut out: Vec<Box<dyn Detector>> = Vec::new();
     for mode in &config.modes {
         match mode {
@@ -172,6 +252,8 @@ pub fn build_detectors(config: &DetectorConfig) -> opencv::Result<Vec<Box<dyn De
                 config.aruco_dictionary.opencv_name(),
                 config,
             )?)),
+            MarkerType::Crosshair => out.push(Box::new(CrosshairDetector::new(sizes))),
+            MarkerType::Circle => out.push(Box::new(CircleDetector::new(sizes))),
         }
     }
     Ok(out)

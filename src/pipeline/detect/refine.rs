@@ -147,7 +147,7 @@ fn midpoint_crossing(profile: &[f64], half: f64) -> Option<f64> {
 }
 
 /// Total least squares line through points: (centroid, unit direction).
-fn fit_line(points: &[Pt]) -> Option<(Pt, Pt)> {
+pub(super) fn fit_line(points: &[Pt]) -> Option<(Pt, Pt)> {
     let n = points.len() as f64;
     let cx = points.iter().map(|p| p.0).sum::<f64>() / n;
     let cy = points.iter().map(|p| p.1).sum::<f64>() / n;
@@ -164,7 +164,7 @@ fn fit_line(points: &[Pt]) -> Option<(Pt, Pt)> {
     dir.0.is_finite().then_some(((cx, cy), dir))
 }
 
-fn intersect(l1: (Pt, Pt), l2: (Pt, Pt)) -> Option<Pt> {
+pub(super) fn intersect(l1: (Pt, Pt), l2: (Pt, Pt)) -> Option<Pt> {
     let ((p, r), (q, s)) = (l1, l2);
     let denom = r.0 * s.1 - r.1 * s.0;
     if denom.abs() < 1e-9 {

@@ -1,0 +1,601 @@
+//! Printed circular targets: a bullseye (black disc, white ring, black ring
+//! with edges at 1/3, 2/3 and 1 of the outer radius) and a disc on a square
+//! board of the other colour.
+//!
+//! 1. Candidates: every dark region or hole from [`blobs`] whose contour is
+//!    an ellipse (OpenCV `fitEllipse`), taken as the innermost edge.
+//! 2. Rays from the candidate's centre, in the ellipse's own frame, look for
+//!    edges at 1x, 2x and 3x the candidate's radius (bullseye: alternating
+//!    polarity, so the ring ratios are checked), or else for a uniform board
+//!    of the other colour that ends in a square of 1.4-3x the disc's diameter.
+//! 3. Subpixel: the midpoint crossing on every ray gives edge points; OpenCV's
+//!    direct least-squares ellipse fit (Fitzgibbon) runs on them, twice.
+//! 4. Perspective moves an ellipse's centre off the circle's projected centre.
+//!    With two concentric rings the true centre is recovered exactly: for the
+//!    conics C1, C3 of the inner and outer ring, it is the eigenvector of
+//!    C1^-1 C3 for its single eigenvalue (the other two are equal). A disc
+//!    alone keeps its ellipse centre (the bias is ~0.01 px for mild tilt).
+
+use opencv::core::{Mat, Point2f, RotatedRect, Vector};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+use super::blobs;
+use super::fiducial::grey_view;
+use super::geometry::{self, Pt};
+use super::profile as pr;
+use super::refine::GreyView;
+use super::{DetectError, Detection, Detector, MarkerType, Refinement, SizeRange};
+
+/// Fewest grey levels between a target's dark and light parts.
+const MIN_CONTRAST: f64 = 15.0;
+/// Fraction of rays that must find each edge.
+const MIN_COVERAGE: f64 = 0.75;
+/// Board side over disc diameter accepted for a disc target (designs: 2).
+const BOARD_TO_DISC: (f64, f64) = (1.4, 3.0);
+/// Largest RMS distance of edge points from their ellipse.
+const MAX_FIT_RMS_PX: f64 = 0.45;
+/// A contour is an ellipse when its area is this close to its fit's.
+const ROUNDNESS: (f64, f64) = (0.85, 1.15);
+
+/// An ellipse: centre, semi-axes and the direction of `a`.
+#[derive(Debug, Clone, Copy)]
+struct Ellipse {
+    c: Pt,
+    a: f64,
+    b: f64,
+    u: Pt,
+}
+
+impl Ellipse {
+    fn from_rect(r: RotatedRect) -> Ellipse {
+        let t = (r.angle as f64).to_radians();
+        Ellipse {
+            c: (r.center.x as f64, r.center.y as f64),
+            a: r.size.width as f64 / 2.0,
+            b: r.size.height as f64 / 2.0,
+            u: (t.cos(), t.sin()),
+        }
+    }
+    /// Radius of the circle of equal area.
+    fn radius(&self) -> f64 {
+        (self.a * self.b).sqrt()
+    }
+    /// Vector from the centre to the point at parameter `phi` (s = 1).
+    fn ray(&self, phi: f64) -> Pt {
+        let v = (-self.u.1, self.u.0);
+        let (ca, sb) = (self.a * phi.cos(), self.b * phi.sin());
+        (ca * self.u.0 + sb * v.0, ca * self.u.1 + sb * v.1)
+    }
+    /// Radial distance (pixels, approximately) of `p` from the ellipse.
+    fn distance(&self, p: Pt) -> f64 {
+        let v = (-self.u.1, self.u.0);
+        let (dx, dy) = (p.0 - self.c.0, p.1 - self.c.1);
+        let (x, y) = (
+            (dx * self.u.0 + dy * self.u.1) / self.a,
+            (dx * v.0 + dy * v.1) / self.b,
+        );
+        (x.hypot(y) - 1.0) * self.radius()
+    }
+    /// The conic matrix (row-major 3x3) in coordinates relative to `origin`.
+    fn conic(&self, origin: Pt) -> [f64; 9] {
+        let v = (-self.u.1, self.u.0);
+        let (ia, ib) = (1.0 / (self.a * self.a), 1.0 / (self.b * self.b));
+        let q = [
+            ia * self.u.0 * self.u.0 + ib * v.0 * v.0,
+            ia * self.u.0 * self.u.1 + ib * v.0 * v.1,
+            ia * self.u.1 * self.u.1 + ib * v.1 * v.1,
+        ];
+        let (cx, cy) = (self.c.0 - origin.0, self.c.1 - origin.1);
+        let (qcx, qcy) = (q[0] * cx + q[1] * cy, q[1] * cx + q[2] * cy);
+        [
+            q[0],
+            q[1],
+            -qcx,
+            q[1],
+            q[2],
+            -qcy,
+            -qcx,
+            -qcy,
+            cx * qcx + cy * qcy - 1.0,
+        ]
+    }
+}
+
+/// Detector of bullseyes and boarded discs within a size range.
+pub struct CircleDetector {
+    sizes: SizeRange,
+    mask: Mat,
+}
+
+/// What one pass of rays found.
+struct RayPass {
+    /// Edge points at s = 1, 2, 3 of the ellipse.
+    edges: [Vec<Pt>; 3],
+    /// Sum of edge polarities (+1 light outside) per edge.
+    polarity: [f64; 3],
+    /// Median contrast of the innermost edge.
+    contrast: f64,
+    rays: usize,
+}
+
+struct Found {
+    centre: Pt,
+    size: f64,
+    shift: f64,
+    rms: f64,
+    confidence: f64,
+}
+
+impl CircleDetector {
+    pub fn new(sizes: SizeRange) -> Self {
+        CircleDetector {
+            sizes,
+            mask: Mat::default(),
+        }
+    }
+
+    fn analyse(&self, img: &GreyView, start: Ellipse) -> Option<Found> {
+        let mut e = start;
+        let mut pass = rays(img, &e, 3)?;
+        let bullseye = is_bullseye(&pass);
+        let mut outer = None;
+        for _ in 0..2 {
+            let inner = fit(&pass.edges[0])?;
+            if bullseye {
+                outer = Some(fit(&pass.edges[2])?);
+            }
+            e = inner;
+            pass = rays(img, &e, 3)?;
+        }
+        let n = pass.rays as f64;
+        let edges_used = if bullseye { 3 } else { 1 };
+        let coverage = pass.edges[..edges_used]
+            .iter()
+            .map(|v| v.len() as f64 / n)
+            .fold(1.0, f64::min);
+        if coverage < MIN_COVERAGE {
+            return None;
+        }
+        let e = fit(&pass.edges[0])?;
+        let rms = rms(&e, &pass.edges[0]);
+        let (centre, size) = if bullseye {
+            let outer = fit(&pass.edges[2]).or(outer)?;
+            let ratio = outer.radius() / e.radius();
+            if !(2.6..=3.4).contains(&ratio) {
+                return None;
+            }
+            let c = concentric_centre(&e, &outer)
+                .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
+                .unwrap_or(e.c);
+            (c, 2.0 * outer.radius())
+        } else {
+            if !board_is_square(img, &e, pass.polarity[0]) {
+                return None;
+            }
+            (e.c, 2.0 * e.radius())
+        };
+        if !self.sizes.accepts(size) || rms > MAX_FIT_RMS_PX + 0.01 * e.radius() {
+            return None;
+        }
+        let confidence = (coverage
+            * (1.0 / (1.0 + (rms / 0.25).powi(2)))
+            * (pass.contrast / 40.0).clamp(0.0, 1.0))
+        .powf(1.0 / 3.0);
+        Some(Found {
+            centre,
+            size,
+            shift: geometry::dist(centre, start.c),
+            rms,
+            confidence,
+        })
+    }
+}
+
+impl Detector for CircleDetector {
+    fn marker_type(&self) -> MarkerType {
+        MarkerType::Circle
+    }
+
+    fn detect(
+        &mut self,
+        tile: &Mat,
+        origin: (usize, usize),
+        seams: [bool; 4],
+    ) -> Result<Vec<Detection>, DetectError> {
+        let err = |source| DetectError {
+            x: origin.0,
+            y: origin.1,
+            source,
+        };
+        // Innermost edges: a bullseye's centre disc is 1/3 of its radius.
+        let r_min = (self.sizes.min_px / 6.0).max(2.5);
+        let r_max = self.sizes.max_px / 2.0;
+        let area = (
+            0.8 * std::f64::consts::PI * r_min * r_min,
+            1.2 * std::f64::consts::PI * r_max * r_max,
+        );
+        let blobs =
+            blobs::find_blobs(tile, blobs::Polarity::Dark, area, &mut self.mask).map_err(err)?;
+        let img = grey_view(tile).map_err(err)?;
+        let mut starts: Vec<Ellipse> = Vec::new();
+        for blob in &blobs {
+            if blob.points.len() < 12 {
+                continue;
+            }
+            let e = Ellipse::from_rect(imgproc::fit_ellipse(&blob.points).map_err(err)?);
+            let fill = blob.area / (std::f64::consts::PI * e.a * e.b);
+            if e.a.min(e.b) / e.a.max(e.b) >= 0.6 && (ROUNDNESS.0..=ROUNDNESS.1).contains(&fill) {
+                starts.push(e);
+            }
+        }
+        starts.sort_by(|p, q| {
+            (p.c.1, p.c.0, p.a)
+                .partial_cmp(&(q.c.1, q.c.0, q.a))
+                .expect("finite")
+        });
+        let mut found: Vec<Found> = starts
+            .iter()
+            .filter_map(|e| self.analyse(&img, *e))
+            .collect();
+        found.sort_by(|a, b| {
+            b.confidence
+                .total_cmp(&a.confidence)
+                .then(a.centre.1.total_cmp(&b.centre.1))
+                .then(a.centre.0.total_cmp(&b.centre.0))
+        });
+        let mut kept: Vec<Found> = Vec::new();
+        for f in found {
+            if !kept
+                .iter()
+                .any(|k| geometry::dist(k.centre, f.centre) < 0.3 * k.size.min(f.size))
+            {
+                kept.push(f);
+            }
+        }
+        let (w, h) = (tile.cols() as f64, tile.rows() as f64);
+        let (ox, oy) = (origin.0 as f64, origin.1 as f64);
+        Ok(kept
+            .into_iter()
+            .map(|f| {
+                let r = f.size / 2.0;
+                let corners = [(-r, -r), (r, -r), (r, r), (-r, r)]
+                    .map(|(dx, dy)| (f.centre.0 + dx, f.centre.1 + dy));
+                Detection {
+                    marker_type: MarkerType::Circle,
+                    marker_id: None,
+                    center: (f.centre.0 + ox, f.centre.1 + oy),
+                    corners: corners.map(|(x, y)| (x + ox, y + oy)),
+                    size_px: f.size,
+                    refine_shift_px: f.shift,
+                    refinement: Refinement::Refined,
+                    bit_errors: None,
+                    decision_margin: None,
+                    fit_rms_px: Some(f.rms),
+                    confidence: f.confidence,
+                    tile_margin: geometry::seam_margin(&corners, w, h, seams),
+                }
+            })
+            .collect())
+    }
+}
+
+/// Bullseye: all three edges seen on most rays, polarity alternating.
+fn is_bullseye(p: &RayPass) -> bool {
+    let n = p.rays as f64;
+    let seen = p.edges.iter().all(|v| v.len() as f64 >= MIN_COVERAGE * n);
+    let pol: Vec<f64> = (0..3)
+        .map(|k| p.polarity[k] / p.edges[k].len().max(1) as f64)
+        .collect();
+    seen && pol[0] > 0.8 && pol[1] < -0.8 && pol[2] > 0.8
+}
+
+/// Samples rays through the ellipse frame and finds midpoint crossings
+/// near s = 1..=`edges`.
+fn rays(img: &GreyView, e: &Ellipse, edges: usize) -> Option<RayPass> {
+    let n = ((std::f64::consts::TAU * e.a.max(e.b)).round() as usize).clamp(32, 360);
+    let mut out = RayPass {
+        edges: [Vec::new(), Vec::new(), Vec::new()],
+        polarity: [0.0; 3],
+        contrast: 0.0,
+        rays: n,
+    };
+    let mut contrasts = Vec::new();
+    let s_max = edges as f64 + 0.5;
+    let mut profile = Vec::new();
+    for i in 0..n {
+        let phi = std::f64::consts::TAU * i as f64 / n as f64;
+        let d = e.ray(phi);
+        let len = d.0.hypot(d.1);
+        if len < 1.0 {
+            return None;
+        }
+        let ds = pr::STEP_PX / len;
+        profile.clear();
+        let mut s = 0.0;
+        while s <= s_max {
+            match img.sample(e.c.0 + d.0 * s, e.c.1 + d.1 * s) {
+                Some(v) => profile.push(v),
+                None => break,
+            }
+            s += ds;
+        }
+        let idx = |s: f64| (s / ds).round() as usize;
+        for k in 0..edges {
+            let edge = (k + 1) as f64;
+            if idx(edge + 0.45) >= profile.len() {
+                break;
+            }
+            let inside = pr::mean(&profile, idx(edge - 0.45), idx(edge - 0.2));
+            let outside = pr::mean(&profile, idx(edge + 0.2), idx(edge + 0.45));
+            if (outside - inside).abs() < 0.7 * MIN_CONTRAST {
+                continue;
+            }
+            let rising = outside > inside;
+            let Some(x) = pr::crossing(&profile, (inside + outside) / 2.0, rising, edge / ds)
+            else {
+                continue;
+            };
+            let s_hit = x * ds;
+            if (s_hit - edge).abs() > 0.3 {
+                continue;
+            }
+            out.edges[k].push((e.c.0 + d.0 * s_hit, e.c.1 + d.1 * s_hit));
+            out.polarity[k] += if rising { 1.0 } else { -1.0 };
+            if k == 0 {
+                contrasts.push((outside - inside).abs());
+            }
+        }
+    }
+    if contrasts.is_empty() {
+        return None;
+    }
+    out.contrast = pr::quantile(&contrasts, 0.5);
+    Some(out)
+}
+
+/// OpenCV's direct least-squares ellipse fit of subpixel edge points.
+fn fit(points: &[Pt]) -> Option<Ellipse> {
+    if points.len() < 8 {
+        return None;
+    }
+    let v: Vector<Point2f> = points
+        .iter()
+        .map(|p| Point2f::new(p.0 as f32, p.1 as f32))
+        .collect();
+    let r = imgproc::fit_ellipse_direct(&v).ok()?;
+    let e = Ellipse::from_rect(r);
+    (e.a.is_finite() && e.b.is_finite() && e.a > 1.0 && e.b > 1.0).then_some(e)
+}
+
+fn rms(e: &Ellipse, points: &[Pt]) -> f64 {
+    let ss: f64 = points.iter().map(|p| e.distance(*p).powi(2)).sum();
+    (ss / points.len().max(1) as f64).sqrt()
+}
+
+/// A disc's board: the other colour, uniform out to 1.25x the disc's radius
+/// on most rays, ending in a square of the designed proportions.
+fn board_is_square(img: &GreyView, e: &Ellipse, polarity: f64) -> bool {
+    let n = 64;
+    let mut ends: Vec<Pt> = Vec::new();
+    let mut uniform = 0;
+    for i in 0..n {
+        let phi = std::f64::consts::TAU * i as f64 / n as f64;
+        let d = e.ray(phi);
+        let at = |s: f64| img.sample(e.c.0 + d.0 * s, e.c.1 + d.1 * s);
+        let (Some(disc), Some(b1), Some(b2), Some(b3)) = (at(0.5), at(1.25), at(1.45), at(1.65))
+        else {
+            continue;
+        };
+        let board = (b1 + b2 + b3) / 3.0;
+        let contrast = board - disc;
+        if contrast * polarity < MIN_CONTRAST
+            || [b1, b2, b3]
+                .iter()
+                .any(|b| (b - board).abs() > 0.3 * contrast.abs())
+        {
+            continue;
+        }
+        uniform += 1;
+        // Walk out to where the board ends.
+        let len = d.0.hypot(d.1);
+        let mut s = 1.65;
+        let mut away = 0;
+        while s <= 4.5 {
+            let Some(v) = at(s) else { break };
+            if (v - board).abs() > 0.5 * contrast.abs() {
+                away += 1;
+                if away == 2 {
+                    ends.push((d.0 * (s - 1.0 / len), d.1 * (s - 1.0 / len)));
+                    break;
+                }
+            } else {
+                away = 0;
+            }
+            s += 1.0 / len;
+        }
+    }
+    if (uniform as f64) < 0.8 * n as f64 || (ends.len() as f64) < 0.6 * n as f64 {
+        return false;
+    }
+    // Square fit: half-side estimates from each end point for every
+    // orientation; keep the orientation with most agreeing points.
+    let mut best = (0usize, 0.0);
+    for deg in 0..90 {
+        let psi = (deg as f64).to_radians();
+        let halves: Vec<f64> = ends
+            .iter()
+            .map(|p| {
+                let a = p.1.atan2(p.0) - psi;
+                p.0.hypot(p.1) * a.cos().abs().max(a.sin().abs())
+            })
+            .collect();
+        let half = pr::quantile(&halves, 0.5);
+        let agree = halves
+            .iter()
+            .filter(|h| (*h - half).abs() < 0.07 * half)
+            .count();
+        if agree > best.0 {
+            best = (agree, half);
+        }
+    }
+    let ratio = best.1 / e.radius();
+    // A round board (a ring around a disc) fits a square loosely too; a
+    // square's corners lie sqrt 2 farther out than its sides' middles.
+    let reach: Vec<f64> = ends.iter().map(|p| p.0.hypot(p.1)).collect();
+    let spread = pr::quantile(&reach, 0.9) / pr::quantile(&reach, 0.1);
+    (best.0 as f64) >= 0.6 * n as f64
+        && spread >= 1.2
+        && (BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio)
+}
+
+/// Image of the common centre of two concentric circles seen as ellipses
+/// `inner` and `outer`: the eigenvector of C1^-1 C2 whose eigenvalue is the
+/// single one (the other two are equal for concentric circles).
+fn concentric_centre(inner: &Ellipse, outer: &Ellipse) -> Option<Pt> {
+    let origin = inner.c;
+    let c1 = inner.conic(origin);
+    let c2 = outer.conic(origin);
+    let m = mul(&inverse(&c1)?, &c2);
+    let lambda = single_eigenvalue(&m)?;
+    let a = [
+        m[0] - lambda,
+        m[1],
+        m[2],
+        m[3],
+        m[4] - lambda,
+        m[5],
+        m[6],
+        m[7],
+        m[8] - lambda,
+    ];
+    // The null vector of a rank-2 matrix: the largest cross product of two rows.
+    let rows = [[a[0], a[1], a[2]], [a[3], a[4], a[5]], [a[6], a[7], a[8]]];
+    let cross = |p: [f64; 3], q: [f64; 3]| {
+        [
+            p[1] * q[2] - p[2] * q[1],
+            p[2] * q[0] - p[0] * q[2],
+            p[0] * q[1] - p[1] * q[0],
+        ]
+    };
+    let norm = |v: [f64; 3]| v.iter().map(|x| x * x).sum::<f64>();
+    let x = [
+        cross(rows[0], rows[1]),
+        cross(rows[0], rows[2]),
+        cross(rows[1], rows[2]),
+    ]
+    .into_iter()
+    .max_by(|p, q| norm(*p).total_cmp(&norm(*q)))?;
+    if x[2].abs() < 1e-12 {
+        return None;
+    }
+    Some((x[0] / x[2] + origin.0, x[1] / x[2] + origin.1))
+}
+
+/// The eigenvalue of a 3x3 matrix that stands apart from the other two
+/// (roots of the characteristic cubic; a near-double pair may come out
+/// complex, and then the real root is the single one).
+fn single_eigenvalue(m: &[f64; 9]) -> Option<f64> {
+    let tr = m[0] + m[4] + m[8];
+    let minors = m[0] * m[4] - m[1] * m[3] + m[0] * m[8] - m[2] * m[6] + m[4] * m[8] - m[5] * m[7];
+    let det = det3(m);
+    // lambda^3 - tr lambda^2 + minors lambda - det = 0; lambda = t + tr/3.
+    let p = minors - tr * tr / 3.0;
+    let q = -2.0 * tr.powi(3) / 27.0 + tr * minors / 3.0 - det;
+    let disc = (q / 2.0).powi(2) + (p / 3.0).powi(3);
+    let shift = tr / 3.0;
+    if disc > 0.0 {
+        let s = disc.sqrt();
+        return Some((-q / 2.0 + s).cbrt() + (-q / 2.0 - s).cbrt() + shift);
+    }
+    let r = (-p / 3.0).max(0.0).sqrt();
+    if r == 0.0 {
+        return None;
+    }
+    let arg = ((-q / 2.0) / r.powi(3)).clamp(-1.0, 1.0);
+    let theta = arg.acos() / 3.0;
+    let roots: Vec<f64> = (0..3)
+        .map(|k| 2.0 * r * (theta - 2.0 * std::f64::consts::PI * k as f64 / 3.0).cos() + shift)
+        .collect();
+    (0..3)
+        .max_by(|&i, &j| {
+            let apart = |k: usize| {
+                (0..3)
+                    .filter(|&o| o != k)
+                    .map(|o| (roots[o] - roots[k]).abs())
+                    .fold(f64::MAX, f64::min)
+            };
+            apart(i).total_cmp(&apart(j))
+        })
+        .map(|k| roots[k])
+}
+
+fn det3(m: &[f64; 9]) -> f64 {
+    m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6])
+        + m[2] * (m[3] * m[7] - m[4] * m[6])
+}
+
+fn inverse(m: &[f64; 9]) -> Option<[f64; 9]> {
+    let d = det3(m);
+    if d.abs() < 1e-300 {
+        return None;
+    }
+    let [a, b, c, e, f, g, h, i, j] = *m;
+    Some([
+        (f * j - g * i) / d,
+        (c * i - b * j) / d,
+        (b * g - c * f) / d,
+        (g * h - e * j) / d,
+        (a * j - c * h) / d,
+        (c * e - a * g) / d,
+        (e * i - f * h) / d,
+        (b * h - a * i) / d,
+        (a * f - b * e) / d,
+    ])
+}
+
+fn mul(x: &[f64; 9], y: &[f64; 9]) -> [f64; 9] {
+    std::array::from_fn(|k| {
+        let (r, c) = (k / 3, k % 3);
+        (0..3).map(|i| x[r * 3 + i] * y[i * 3 + c]).sum()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::detect::geometry::{apply, square_to_quad};
+
+    /// Samples a projected circle of radius r around the origin of the unit
+    /// square's centre through homography h, and fits an exact conic to it.
+    fn projected(h: &[f64; 9], r: f64) -> Ellipse {
+        let pts: Vec<Pt> = (0..200)
+            .map(|i| {
+                let a = std::f64::consts::TAU * i as f64 / 200.0;
+                apply(h, (0.5 + r * a.cos(), 0.5 + r * a.sin()))
+            })
+            .collect();
+        fit(&pts).expect("ellipse")
+    }
+
+    #[test]
+    fn concentric_rings_recover_the_projected_centre() {
+        // A strong perspective, so the ellipse centres are visibly biased.
+        let quad = [
+            (100.0, 100.0),
+            (400.0, 130.0),
+            (380.0, 420.0),
+            (90.0, 360.0),
+        ];
+        let h = square_to_quad(&quad);
+        let truth = apply(&h, (0.5, 0.5));
+        let (inner, outer) = (projected(&h, 0.1), projected(&h, 0.3));
+        let bias = geometry::dist(outer.c, truth);
+        assert!(bias > 0.5, "outer ellipse centre bias only {bias}");
+        let c = concentric_centre(&inner, &outer).expect("centre");
+        assert!(
+            geometry::dist(c, truth) < 0.02,
+            "{c:?} vs {truth:?} (bias was {bias})"
+        );
+    }
+}

@@ -1,0 +1,100 @@
+//! Intensity profiles on the grey tile for the printed-target detectors:
+//! rings around a candidate centre, straight profiles, and midpoint
+//! crossings. A crossing at the midpoint of its own dark and light levels
+//! is unbiased for any symmetric blur (defocus, motion) and any local
+//! brightness scale (shadow), which is what makes these fits subpixel.
+
+use super::geometry::Pt;
+use super::refine::GreyView;
+
+/// Samples along a straight profile, in pixels.
+pub const STEP_PX: f64 = 0.25;
+
+/// `n` samples on a circle of radius `r` around `c`, counter-clockwise in
+/// image axes from +x; None when the circle leaves the tile.
+pub fn ring(img: &GreyView, c: Pt, r: f64, n: usize) -> Option<Vec<f64>> {
+    (0..n)
+        .map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            img.sample(c.0 + r * a.cos(), c.1 + r * a.sin())
+        })
+        .collect()
+}
+
+/// Samples from `base - half * dir` to `base + half * dir` every
+/// [`STEP_PX`]; None when the profile leaves the tile.
+pub fn line(img: &GreyView, base: Pt, dir: Pt, half: f64, out: &mut Vec<f64>) -> Option<()> {
+    let n = (2.0 * half / STEP_PX).round() as usize;
+    out.clear();
+    for k in 0..=n {
+        let s = -half + k as f64 * STEP_PX;
+        out.push(img.sample(base.0 + dir.0 * s, base.1 + dir.1 * s)?);
+    }
+    Some(())
+}
+
+/// Offset from the profile's centre of a sample index (fractional).
+pub fn offset(index: f64, half: f64) -> f64 {
+    -half + index * STEP_PX
+}
+
+/// Fractional index where `p` crosses `level` upward (`rising`) or downward,
+/// nearest to index `near`.
+pub fn crossing(p: &[f64], level: f64, rising: bool, near: f64) -> Option<f64> {
+    let mut best: Option<f64> = None;
+    for i in 0..p.len().saturating_sub(1) {
+        let (a, b) = (p[i], p[i + 1]);
+        let hit = if rising {
+            a < level && b >= level
+        } else {
+            a >= level && b < level
+        };
+        if hit {
+            let x = i as f64 + (level - a) / (b - a);
+            if best.is_none_or(|bx| (x - near).abs() < (bx - near).abs()) {
+                best = Some(x);
+            }
+        }
+    }
+    best
+}
+
+/// Mean of `p[range]` (clamped to the profile).
+pub fn mean(p: &[f64], from: usize, to: usize) -> f64 {
+    let to = to.min(p.len());
+    let from = from.min(to.saturating_sub(1));
+    p[from..to].iter().sum::<f64>() / (to - from).max(1) as f64
+}
+
+/// The q-quantile of `v` (0..=1), nearest rank.
+pub fn quantile(v: &[f64], q: f64) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[((s.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Root mean square distance of points from a line (point, unit direction).
+pub fn line_rms(points: &[Pt], line: (Pt, Pt)) -> f64 {
+    let ((px, py), (dx, dy)) = line;
+    let ss: f64 = points
+        .iter()
+        .map(|&(x, y)| {
+            let d = (x - px) * dy - (y - py) * dx;
+            d * d
+        })
+        .sum();
+    (ss / points.len().max(1) as f64).sqrt()
+}
+
+pub fn unit(a: f64) -> Pt {
+    (a.cos(), a.sin())
+}
+
+/// `a` rotated by +90 degrees in image axes.
+pub fn perp(a: Pt) -> Pt {
+    (-a.1, a.0)
+}
+
+pub fn add(p: Pt, d: Pt, t: f64) -> Pt {
+    (p.0 + d.0 * t, p.1 + d.1 * t)
+}

@@ -1,0 +1,266 @@
+//! Printed targets without a code (crosshair, checker, bullseye, disc) and
+//! the aerial look-alikes that must not be taken for them.
+
+use std::f64::consts::PI;
+
+use crate::pipeline::detect::geometry::{self, Pt};
+use crate::pipeline::detect::MarkerType;
+
+use super::render::{bbox_of, invert, paint, square_corners, GreyImage, Truth};
+use super::render::{PAPER_BLACK, PAPER_WHITE};
+use super::Rng;
+
+/// Designs of printed targets. Sizes are fractions of the target's size
+/// (the square's side, or the outermost ring's diameter).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PrintedDesign {
+    /// A white cross with bars `bar` wide running the full side of a black
+    /// square; `marking` adds a small white square near one outer corner.
+    Cross { bar: f64, marking: bool },
+    /// 2x2 checker: two black and two white quadrants.
+    Checker,
+    /// Black disc, white ring and black ring with edges at 1/3, 2/3 and 1 of
+    /// the outer radius, on a white square board 1.25x the outer diameter.
+    Bullseye,
+    /// A disc on a square board of twice its diameter, in the other colour.
+    Disc { white_on_black: bool },
+}
+
+impl PrintedDesign {
+    pub fn marker_type(self) -> MarkerType {
+        match self {
+            PrintedDesign::Cross { .. } | PrintedDesign::Checker => MarkerType::Crosshair,
+            PrintedDesign::Bullseye | PrintedDesign::Disc { .. } => MarkerType::Circle,
+        }
+    }
+}
+
+/// One printed target to place.
+#[derive(Debug, Clone)]
+pub struct PrintedSpec {
+    pub design: PrintedDesign,
+    pub center: Pt,
+    /// Side of the square (cross, checker) or outer diameter (bullseye, disc).
+    pub size_px: f64,
+    pub rotation_deg: f64,
+    /// Corners move by up to this fraction of the size: mild perspective.
+    pub perspective: f64,
+    /// Print contrast: 1 = paper black and white; less moves both toward grey.
+    pub contrast: f64,
+    /// A shadow edge (x 0.55) crosses the target near its centre.
+    pub shadow: bool,
+}
+
+/// Paints `spec`; `index` becomes the truth's id (printed targets carry none).
+pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &mut Rng) -> Truth {
+    let corners = square_corners(
+        spec.center,
+        spec.size_px,
+        spec.rotation_deg,
+        spec.perspective,
+        rng,
+    );
+    let h = geometry::square_to_quad(&corners);
+    let inv = invert(&h);
+    let mid = 0.5f32;
+    let k = spec.contrast as f32;
+    let (black, white) = (mid - (mid - PAPER_BLACK) * k, mid + (PAPER_WHITE - mid) * k);
+    // Extent of the paper around the unit square, in target units.
+    let reach = match spec.design {
+        PrintedDesign::Cross { .. } | PrintedDesign::Checker => 0.5,
+        PrintedDesign::Bullseye => 0.625,
+        PrintedDesign::Disc { .. } => 1.0,
+    };
+    let outline = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+        .map(|(u, v)| geometry::apply(&h, (0.5 + u * reach, 0.5 + v * reach)));
+    let design = spec.design;
+    paint(img, bbox_of(&outline), |px, py| {
+        let (u, v) = geometry::apply(&inv, (px, py));
+        let (x, y) = (u - 0.5, v - 0.5);
+        if x.abs() > reach || y.abs() > reach {
+            return None;
+        }
+        let r = x.hypot(y);
+        let is_white = match design {
+            PrintedDesign::Cross { bar, marking } => {
+                let in_mark = marking && (x - 0.36).abs() < 0.05 && (y + 0.36).abs() < 0.05;
+                x.abs() < bar / 2.0 || y.abs() < bar / 2.0 || in_mark
+            }
+            PrintedDesign::Checker => x * y < 0.0,
+            PrintedDesign::Bullseye => !(r < 1.0 / 6.0 || (1.0 / 3.0..0.5).contains(&r)),
+            PrintedDesign::Disc { white_on_black } => (r < 0.5) == white_on_black,
+        };
+        Some(if is_white { white } else { black })
+    });
+    if spec.shadow {
+        let angle = rng.range(0.0, PI);
+        let offset = rng.range(-0.25, 0.25) * spec.size_px;
+        local_shadow(img, spec.center, angle, offset, 2.0 * spec.size_px);
+    }
+    Truth {
+        marker_type: spec.design.marker_type(),
+        id: index,
+        center: geometry::apply(&h, (0.5, 0.5)),
+        corners,
+        side_px: spec.size_px,
+    }
+}
+
+/// A straight shadow edge through `center` (moved by `offset` along its
+/// normal) darkening one side within `radius`, as a pole or a tree casts.
+fn local_shadow(img: &mut GreyImage, center: Pt, angle: f64, offset: f64, radius: f64) {
+    let (s, c) = angle.sin_cos();
+    let x0 = (center.0 - radius).max(0.0) as usize;
+    let y0 = (center.1 - radius).max(0.0) as usize;
+    let x1 = ((center.0 + radius) as usize).min(img.width - 1);
+    let y1 = ((center.1 + radius) as usize).min(img.height - 1);
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let (dx, dy) = (x as f64 - center.0, y as f64 - center.1);
+            if dx.hypot(dy) > radius {
+                continue;
+            }
+            let d = -s * dx + c * dy - offset;
+            let cover = (0.5 - d).clamp(0.0, 1.0) as f32;
+            img.data[y * img.width + x] *= 1.0 - 0.45 * cover;
+        }
+    }
+}
+
+/// Paints one random look-alike of a printed target.
+pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
+    let (w, h) = (img.width as f64, img.height as f64);
+    let c = (rng.range(0.0, w), rng.range(0.0, h));
+    let angle = rng.range(0.0, PI);
+    let (s, co) = angle.sin_cos();
+    // Point in the object's own frame (u along its rotated x axis).
+    let local = move |x: f64, y: f64| {
+        let (dx, dy) = (x - c.0, y - c.1);
+        (co * dx + s * dy, -s * dx + co * dy)
+    };
+    match (rng.uniform() * 7.0) as usize {
+        0 => {
+            // Solar-panel array: dark cells in a light frame, a grid whose
+            // every inner crossing looks like a cross target.
+            let cell = rng.range(10.0, 35.0);
+            let (cols, rows) = (
+                4 + (rng.uniform() * 5.0) as usize,
+                3 + (rng.uniform() * 3.0) as usize,
+            );
+            let line = cell * rng.range(0.1, 0.25);
+            let (hw, hh) = (cols as f64 * cell / 2.0, rows as f64 * cell / 2.0);
+            let r = hw.hypot(hh) + line;
+            paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+                let (u, v) = local(x, y);
+                if u.abs() > hw + line / 2.0 || v.abs() > hh + line / 2.0 {
+                    return None;
+                }
+                let fu = (u + hw).rem_euclid(cell);
+                let fv = (v + hh).rem_euclid(cell);
+                let on_line = fu < line / 2.0
+                    || fu > cell - line / 2.0
+                    || fv < line / 2.0
+                    || fv > cell - line / 2.0;
+                Some(if on_line { 0.8 } else { 0.12 })
+            });
+        }
+        1 => {
+            // Paving in a checker pattern: every inner corner is a saddle.
+            let tile = rng.range(10.0, 30.0);
+            let n = 4 + (rng.uniform() * 5.0) as usize;
+            let half = n as f64 * tile / 2.0;
+            let (a, b) = (rng.range(0.15, 0.35) as f32, rng.range(0.55, 0.85) as f32);
+            let r = half * 1.5;
+            paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+                let (u, v) = local(x, y);
+                if u.abs() > half || v.abs() > half {
+                    return None;
+                }
+                let (i, j) = (((u + half) / tile) as usize, ((v + half) / tile) as usize);
+                Some(if (i + j) % 2 == 0 { a } else { b })
+            });
+        }
+        2 => {
+            // Road-marking cross: long white bars on a wide asphalt patch.
+            let width = rng.range(6.0, 20.0);
+            let arm = width * rng.range(7.0, 20.0);
+            let patch = arm * 1.5;
+            let r = patch * 1.5;
+            paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+                let (u, v) = local(x, y);
+                if u.abs() > patch || v.abs() > patch {
+                    return None;
+                }
+                let bar = (u.abs() < width / 2.0 && v.abs() < arm)
+                    || (v.abs() < width / 2.0 && u.abs() < arm);
+                Some(if bar { 0.85 } else { 0.13 })
+            });
+        }
+        3 => {
+            // Manhole: dark cover inside a light rim.
+            let radius = rng.range(10.0, 45.0);
+            let rim = radius * rng.range(1.08, 1.25);
+            paint(img, (c.0 - rim, c.1 - rim, c.0 + rim, c.1 + rim), |x, y| {
+                let d = (x - c.0).hypot(y - c.1);
+                (d <= rim).then_some(if d < radius { 0.12 } else { 0.62 })
+            });
+        }
+        4 => {
+            // Pyramid roof: four triangular faces lit by a low sun.
+            let half = rng.range(20.0, 90.0);
+            let sun = rng.range(0.0, 2.0 * PI);
+            let r = half * 1.5;
+            paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+                let (u, v) = local(x, y);
+                if u.abs() > half || v.abs() > half {
+                    return None;
+                }
+                // The face's outward direction in the object frame, then the
+                // frame's rotation, dotted with the sun.
+                let face: f64 = if u.abs() > v.abs() {
+                    if u > 0.0 {
+                        0.0
+                    } else {
+                        PI
+                    }
+                } else if v > 0.0 {
+                    PI / 2.0
+                } else {
+                    -PI / 2.0
+                };
+                Some((0.45 + 0.35 * (face + angle - sun).cos()) as f32)
+            });
+        }
+        5 => {
+            // Round tank on a square flat roof, off the roof's centre.
+            let radius = rng.range(12.0, 40.0);
+            let half = radius * rng.range(1.6, 3.5);
+            let off = (half - radius) * rng.range(0.4, 0.9);
+            let r = half * 1.5;
+            paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+                let (u, v) = local(x, y);
+                if u.abs() > half || v.abs() > half {
+                    return None;
+                }
+                let tank = (u - off).hypot(v - off * 0.5) < radius;
+                Some(if tank { 0.85 } else { 0.2 })
+            });
+        }
+        _ => {
+            // Car: body with dark windscreen and rear window.
+            let len = rng.range(35.0, 55.0);
+            let wid = len * 0.45;
+            let body = rng.range(0.1, 0.9) as f32;
+            let r = len;
+            paint(img, (c.0 - r, c.1 - r, c.0 + r, c.1 + r), |x, y| {
+                let (u, v) = local(x, y);
+                if u.abs() > len / 2.0 || v.abs() > wid / 2.0 {
+                    return None;
+                }
+                let glass = v.abs() < wid * 0.4
+                    && ((u - len * 0.12).abs() < len * 0.08 || (u + len * 0.25).abs() < len * 0.06);
+                Some(if glass { 0.08 } else { body })
+            });
+        }
+    }
+}

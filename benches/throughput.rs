@@ -75,6 +75,30 @@ fn main() {
             );
         }
     }
+
+    // Speed of each mode on the same frames (2 threads): detection time
+    // depends on the picture (texture, clutter), not on which targets it holds.
+    let set = &sets[0];
+    let dir = root.join(format!(
+        "{}x{}-{}",
+        set.spec.width, set.spec.height, set.spec.frames
+    ));
+    println!();
+    println!(
+        "| mode ({} x{}, 2 threads) | MP/s | peak RSS MiB |",
+        set.name, set.spec.frames
+    );
+    println!("|---|---|---|");
+    for mode in ["apriltag", "aruco", "crosshair", "circle"] {
+        let out = dir.with_extension(format!("{mode}.csv"));
+        let (seconds, rss_kib) = run_detect(&dir, &out, &["--threads", "2", "--marker-type", mode]);
+        let mp = (set.spec.width * set.spec.height * set.spec.frames) as f64 / 1e6;
+        println!(
+            "| {mode} | {:.1} | {:.0} |",
+            mp / seconds,
+            rss_kib as f64 / 1024.0
+        );
+    }
 }
 
 /// Recall and centre-error quantiles of `out` against `truth` (both CSV,

@@ -214,20 +214,9 @@ pub(super) fn bbox_of(points: &[Pt]) -> (f64, f64, f64, f64) {
         })
 }
 
+/// A marker homography's inverse (markers are never degenerate).
 pub(super) fn invert(h: &[f64; 9]) -> [f64; 9] {
-    let [a, b, c, d, e, f, g, hh, i] = *h;
-    let det = a * (e * i - f * hh) - b * (d * i - f * g) + c * (d * hh - e * g);
-    [
-        (e * i - f * hh) / det,
-        (c * hh - b * i) / det,
-        (b * f - c * e) / det,
-        (f * g - d * i) / det,
-        (a * i - c * g) / det,
-        (c * d - a * f) / det,
-        (d * hh - e * g) / det,
-        (b * g - a * hh) / det,
-        (a * e - b * d) / det,
-    ]
+    geometry::invert3(h).expect("marker homography is invertible")
 }
 
 /// The marker's outer-border corners for its centre, size, rotation and

@@ -22,10 +22,11 @@ use opencv::prelude::*;
 
 use super::blobs;
 use super::fiducial::grey_view;
+use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::profile as pr;
 use super::refine::GreyView;
-use super::{DetectError, Detection, Detector, MarkerType, Refinement, SizeRange};
+use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Fewest grey levels between a target's dark and light parts.
 const MIN_CONTRAST: f64 = 15.0;
@@ -119,14 +120,6 @@ struct RayPass {
     rays: usize,
 }
 
-struct Found {
-    centre: Pt,
-    size: f64,
-    shift: f64,
-    rms: f64,
-    confidence: f64,
-}
-
 impl CircleDetector {
     pub fn new(sizes: SizeRange) -> Self {
         CircleDetector {
@@ -182,8 +175,11 @@ impl CircleDetector {
             * (1.0 / (1.0 + (rms / 0.25).powi(2)))
             * (pass.contrast / 40.0).clamp(0.0, 1.0))
         .powf(1.0 / 3.0);
+        let r = size / 2.0;
         Some(Found {
             centre,
+            corners: [(-r, -r), (r, -r), (r, r), (-r, r)]
+                .map(|(dx, dy)| (centre.0 + dx, centre.1 + dy)),
             size,
             shift: geometry::dist(centre, start.c),
             rms,
@@ -203,11 +199,7 @@ impl Detector for CircleDetector {
         origin: (usize, usize),
         seams: [bool; 4],
     ) -> Result<Vec<Detection>, DetectError> {
-        let err = |source| DetectError {
-            x: origin.0,
-            y: origin.1,
-            source,
-        };
+        let err = DetectError::at(origin);
         // Innermost edges: a bullseye's centre disc is 1/3 of its radius.
         let r_min = (self.sizes.min_px / 6.0).max(2.5);
         let r_max = self.sizes.max_px / 2.0;
@@ -238,44 +230,10 @@ impl Detector for CircleDetector {
             .iter()
             .filter_map(|e| self.analyse(&img, *e))
             .collect();
-        found.sort_by(|a, b| {
-            b.confidence
-                .total_cmp(&a.confidence)
-                .then(a.centre.1.total_cmp(&b.centre.1))
-                .then(a.centre.0.total_cmp(&b.centre.0))
-        });
-        let mut kept: Vec<Found> = Vec::new();
-        for f in found {
-            if !kept
-                .iter()
-                .any(|k| geometry::dist(k.centre, f.centre) < 0.3 * k.size.min(f.size))
-            {
-                kept.push(f);
-            }
-        }
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);
-        let (ox, oy) = (origin.0 as f64, origin.1 as f64);
-        Ok(kept
+        Ok(best_per_target(&mut found)
             .into_iter()
-            .map(|f| {
-                let r = f.size / 2.0;
-                let corners = [(-r, -r), (r, -r), (r, r), (-r, r)]
-                    .map(|(dx, dy)| (f.centre.0 + dx, f.centre.1 + dy));
-                Detection {
-                    marker_type: MarkerType::Circle,
-                    marker_id: None,
-                    center: (f.centre.0 + ox, f.centre.1 + oy),
-                    corners: corners.map(|(x, y)| (x + ox, y + oy)),
-                    size_px: f.size,
-                    refine_shift_px: f.shift,
-                    refinement: Refinement::Refined,
-                    bit_errors: None,
-                    decision_margin: None,
-                    fit_rms_px: Some(f.rms),
-                    confidence: f.confidence,
-                    tile_margin: geometry::seam_margin(&corners, w, h, seams),
-                }
-            })
+            .map(|f| to_detection(MarkerType::Circle, f, origin, w, h, seams))
             .collect())
     }
 }
@@ -456,7 +414,7 @@ fn concentric_centre(inner: &Ellipse, outer: &Ellipse) -> Option<Pt> {
     let origin = inner.c;
     let c1 = inner.conic(origin);
     let c2 = outer.conic(origin);
-    let m = mul(&inverse(&c1)?, &c2);
+    let m = mul(&geometry::invert3(&c1)?, &c2);
     let lambda = single_eigenvalue(&m)?;
     let a = [
         m[0] - lambda,
@@ -533,25 +491,6 @@ fn single_eigenvalue(m: &[f64; 9]) -> Option<f64> {
 fn det3(m: &[f64; 9]) -> f64 {
     m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6])
         + m[2] * (m[3] * m[7] - m[4] * m[6])
-}
-
-fn inverse(m: &[f64; 9]) -> Option<[f64; 9]> {
-    let d = det3(m);
-    if d.abs() < 1e-300 {
-        return None;
-    }
-    let [a, b, c, e, f, g, h, i, j] = *m;
-    Some([
-        (f * j - g * i) / d,
-        (c * i - b * j) / d,
-        (b * g - c * f) / d,
-        (g * h - e * j) / d,
-        (a * j - c * h) / d,
-        (c * e - a * g) / d,
-        (e * i - f * h) / d,
-        (b * h - a * i) / d,
-        (a * f - b * e) / d,
-    ])
 }
 
 fn mul(x: &[f64; 9], y: &[f64; 9]) -> [f64; 9] {

@@ -24,10 +24,11 @@ use opencv::prelude::*;
 
 use super::blobs::{self, Blob};
 use super::fiducial::grey_view;
+use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::profile::{self as pr, add, perp, unit};
 use super::refine::{fit_line, intersect, GreyView};
-use super::{DetectError, Detection, Detector, MarkerType, Refinement, SizeRange};
+use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Ring samples: 2.8 degrees apart.
 const RING_SAMPLES: usize = 128;
@@ -282,16 +283,6 @@ impl CrosshairDetector {
     }
 }
 
-/// A verified target in tile pixels.
-struct Found {
-    centre: Pt,
-    corners: [Pt; 4],
-    size: f64,
-    shift: f64,
-    rms: f64,
-    confidence: f64,
-}
-
 impl Detector for CrosshairDetector {
     fn marker_type(&self) -> MarkerType {
         MarkerType::Crosshair
@@ -303,11 +294,7 @@ impl Detector for CrosshairDetector {
         origin: (usize, usize),
         seams: [bool; 4],
     ) -> Result<Vec<Detection>, DetectError> {
-        let err = |source| DetectError {
-            x: origin.0,
-            y: origin.1,
-            source,
-        };
+        let err = DetectError::at(origin);
         // Quadrants of a cross are ~0.4 of the side; a checker's merged dark
         // quadrants are half its area.
         let area = (
@@ -347,52 +334,6 @@ impl Detector for CrosshairDetector {
             .into_iter()
             .map(|f| to_detection(MarkerType::Crosshair, f, origin, w, h, seams))
             .collect())
-    }
-}
-
-/// One detection per physical target: candidates that converged on the same
-/// centre keep the most confident.
-fn best_per_target(found: &mut Vec<Found>) -> Vec<Found> {
-    found.sort_by(|a, b| {
-        b.confidence
-            .total_cmp(&a.confidence)
-            .then(a.centre.1.total_cmp(&b.centre.1))
-            .then(a.centre.0.total_cmp(&b.centre.0))
-    });
-    let mut kept: Vec<Found> = Vec::new();
-    for f in found.drain(..) {
-        if !kept
-            .iter()
-            .any(|k| geometry::dist(k.centre, f.centre) < 0.3 * k.size.min(f.size))
-        {
-            kept.push(f);
-        }
-    }
-    kept
-}
-
-fn to_detection(
-    marker_type: MarkerType,
-    f: Found,
-    origin: (usize, usize),
-    w: f64,
-    h: f64,
-    seams: [bool; 4],
-) -> Detection {
-    let (ox, oy) = (origin.0 as f64, origin.1 as f64);
-    Detection {
-        marker_type,
-        marker_id: None,
-        center: (f.centre.0 + ox, f.centre.1 + oy),
-        corners: f.corners.map(|(x, y)| (x + ox, y + oy)),
-        size_px: f.size,
-        refine_shift_px: f.shift,
-        refinement: Refinement::Refined,
-        bit_errors: None,
-        decision_margin: None,
-        fit_rms_px: Some(f.rms),
-        confidence: f.confidence,
-        tile_margin: geometry::seam_margin(&f.corners, w, h, seams),
     }
 }
 

@@ -285,11 +285,7 @@ impl Detector for FiducialDetector {
         origin: (usize, usize),
         seams: [bool; 4],
     ) -> Result<Vec<Detection>, DetectError> {
-        let err = |source| DetectError {
-            x: origin.0,
-            y: origin.1,
-            source,
-        };
+        let err = DetectError::at(origin);
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);
         // OpenCV expresses the smallest marker as a perimeter relative to the
         // tile's larger side.

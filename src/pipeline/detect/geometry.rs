@@ -62,6 +62,27 @@ pub fn square_to_quad(c: &[Pt; 4]) -> [f64; 9] {
     ]
 }
 
+/// Inverse of a row-major 3x3 matrix (adjugate over determinant); None when
+/// singular.
+pub fn invert3(m: &[f64; 9]) -> Option<[f64; 9]> {
+    let [a, b, c, d, e, f, g, h, i] = *m;
+    let det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g);
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    Some([
+        (e * i - f * h) / det,
+        (c * h - b * i) / det,
+        (b * f - c * e) / det,
+        (f * g - d * i) / det,
+        (a * i - c * g) / det,
+        (c * d - a * f) / det,
+        (d * h - e * g) / det,
+        (b * g - a * h) / det,
+        (a * e - b * d) / det,
+    ])
+}
+
 /// Applies a row-major 3x3 homography to a point.
 pub fn apply(h: &[f64; 9], p: Pt) -> Pt {
     let w = h[6] * p.0 + h[7] * p.1 + h[8];

@@ -8,6 +8,7 @@ mod blobs;
 mod circle;
 mod crosshair;
 mod fiducial;
+mod found;
 pub mod geometry;
 mod profile;
 pub mod refine;
@@ -29,6 +30,17 @@ pub struct DetectError {
     pub y: usize,
     #[source]
     pub source: opencv::Error,
+}
+
+impl DetectError {
+    /// Wraps OpenCV errors of the tile whose top-left pixel is `origin`.
+    pub fn at(origin: (usize, usize)) -> impl Fn(opencv::Error) -> DetectError + Copy {
+        move |source| DetectError {
+            x: origin.0,
+            y: origin.1,
+            source,
+        }
+    }
 }
 
 /// Kinds of target a job can ask for.

@@ -10,3 +10,4 @@ else
   echo "test: rustfmt not installed; skipping the format check (rustup component add rustfmt)" >&2
 fi
 cargo test --all-targets --locked "$@"
+bash scripts/lint-deploy.sh

@@ -63,6 +63,59 @@ pub enum Command {
     Serve(crate::config::ServeArgs),
     /// Print the service's OpenAPI document (as committed in openapi/openapi.json).
     Openapi,
+    /// Check that a running service answers 200 on a route (container
+    /// HEALTHCHECK; the runtime image has no curl). Exit 0 when it does.
+    Probe(ProbeArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct ProbeArgs {
+    /// host:port of the service.
+    #[arg(long, default_value = "127.0.0.1:8080", env = "GCP_TAGGER_PROBE_ADDR")]
+    pub addr: String,
+    /// Route to ask for.
+    #[arg(long, default_value = "/livez")]
+    pub path: String,
+    /// Give up after this many seconds.
+    #[arg(long, default_value_t = 3)]
+    pub timeout_secs: u64,
+}
+
+/// Runs `probe`: one HTTP/1.1 GET over a plain TCP connection.
+pub fn probe(args: ProbeArgs) -> ExitCode {
+    use std::io::{Read, Write};
+    use std::net::{TcpStream, ToSocketAddrs};
+    let timeout = std::time::Duration::from_secs(args.timeout_secs.max(1));
+    let ask = || -> std::io::Result<String> {
+        let addr = args
+            .addr
+            .to_socket_addrs()?
+            .next()
+            .ok_or_else(|| std::io::Error::other("address resolves to nothing"))?;
+        let mut stream = TcpStream::connect_timeout(&addr, timeout)?;
+        stream.set_read_timeout(Some(timeout))?;
+        stream.set_write_timeout(Some(timeout))?;
+        write!(
+            stream,
+            "GET {} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n",
+            args.path, args.addr
+        )?;
+        let mut head = [0u8; 64];
+        let n = stream.read(&mut head)?;
+        Ok(String::from_utf8_lossy(&head[..n]).into_owned())
+    };
+    match ask() {
+        Ok(head) if head.starts_with("HTTP/1.1 200") => ExitCode::SUCCESS,
+        Ok(head) => {
+            let line = head.lines().next().unwrap_or("").to_string();
+            eprintln!("error: {}{} answered {line:?}", args.addr, args.path);
+            ExitCode::FAILURE
+        }
+        Err(e) => {
+            eprintln!("error: {}{}: {e}", args.addr, args.path);
+            ExitCode::FAILURE
+        }
+    }
 }
 
 #[derive(Args, Debug)]

@@ -29,6 +29,7 @@ fn main() -> ExitCode {
         Command::Detect(a) => cli::detect(a),
         Command::Sample(a) => cli::sample(a),
         Command::Serve(a) => serve(a),
+        Command::Probe(a) => cli::probe(a),
         Command::Openapi => {
             println!("{}", gcp_tagger::api::openapi_json());
             ExitCode::SUCCESS

@@ -267,3 +267,47 @@ fn frame_larger_than_the_budget_is_refused_with_numbers() {
         "{err}"
     );
 }
+
+/// The README's production section documents every `serve` flag with its
+/// environment variable, checked against `serve --help` itself.
+#[test]
+fn the_readme_configuration_reference_matches_serve_help() {
+    let help = std::process::Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .args(["serve", "--help"])
+        .output()
+        .expect("serve --help");
+    let help = String::from_utf8(help.stdout).unwrap();
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    let section = readme
+        .split("## Production")
+        .nth(1)
+        .expect("README has a Production section");
+    let mut flags = 0;
+    for line in help.lines().map(str::trim) {
+        let Some(flag) = line
+            .strip_prefix("--")
+            .map(|l| l.split([' ', ',']).next().unwrap())
+        else {
+            continue;
+        };
+        if flag == "help" {
+            continue;
+        }
+        flags += 1;
+        assert!(
+            section.contains(&format!("`--{flag}`")),
+            "README lacks --{flag}"
+        );
+    }
+    let mut vars = 0;
+    for var in help
+        .split("[env: ")
+        .skip(1)
+        .map(|s| s.split(['=', ']']).next().unwrap())
+    {
+        vars += 1;
+        assert!(section.contains(&format!("`{var}`")), "README lacks {var}");
+    }
+    assert!(flags >= 12 && vars >= 12, "{flags} flags, {vars} variables");
+}

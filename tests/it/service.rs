@@ -605,3 +605,33 @@ fn the_committed_openapi_document_is_current() {
          `cargo run -- openapi > openapi/openapi.json`"
     );
 }
+
+/// `gcp-tagger probe`, the container's HEALTHCHECK: 0 when the route
+/// answers 200, 1 on any other status or when nothing listens.
+#[test]
+fn the_health_probe_tells_a_live_server_from_a_dead_one() {
+    let data = tempfile::tempdir().unwrap();
+    let mut server = Server::start(
+        &data.path().join("d"),
+        &["--api-key", "k3y-for-the-probe-test"],
+    );
+    let addr = server.base.trim_start_matches("http://").to_string();
+    let probe = |path: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+            .args(["probe", "--addr", &addr, "--path", path])
+            .output()
+            .expect("run probe")
+    };
+    assert!(probe("/livez").status.success());
+    assert!(probe("/readyz").status.success());
+    let refused = probe("/v1/jobs");
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("401"),
+        "{refused:?}"
+    );
+    server.stop();
+    let dead = probe("/livez");
+    assert_eq!(dead.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&dead.stderr).starts_with("error: "));
+}

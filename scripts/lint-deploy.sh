@@ -11,6 +11,10 @@ command -v kubernetes-validate >/dev/null 2>&1 || need+=(kubernetes-validate)
 if [ "${#need[@]}" -gt 0 ]; then
   echo "lint-deploy: installing ${need[*]} from PyPI" >&2
   python3 -m pip install -q --disable-pip-version-check "${need[@]}"
+  # New console scripts: pyenv needs its shims refreshed; a --user install
+  # lands in the user base.
+  if command -v pyenv >/dev/null 2>&1; then pyenv rehash; fi
+  PATH="$PATH:$(python3 -m site --user-base)/bin"
 fi
 
 hadolint --failure-threshold warning Dockerfile

@@ -83,7 +83,7 @@ pub struct ProbeArgs {
 
 /// Runs `probe`: one HTTP/1.1 GET over a plain TCP connection.
 pub fn probe(args: ProbeArgs) -> ExitCode {
-    use std::io::{Read, Write};
+    use std::io::Read;
     use std::net::{TcpStream, ToSocketAddrs};
     let timeout = std::time::Duration::from_secs(args.timeout_secs.max(1));
     let ask = || -> std::io::Result<String> {

@@ -105,10 +105,10 @@ fn bullseye_centres_are_subpixel_and_discs_are_found() {
     let [bullseye, disc] = &f.errors;
     assert!(quantile(bullseye, 0.5) <= 0.1, "bullseye median");
     assert!(quantile(bullseye, 0.95) <= 0.3, "bullseye p95");
-    // A lone disc's ellipse centre carries the perspective bias (no second
-    // ring to remove it): known gap, see README.
-    assert!(quantile(disc, 0.5) <= 1.0, "disc median");
-    assert!(quantile(disc, 0.95) <= 2.5, "disc p95");
+    // A disc's centre comes from the board's vanishing line, whose edge
+    // points are not yet subpixel: known gap, see README.
+    assert!(quantile(disc, 0.5) <= 0.3, "disc median");
+    assert!(quantile(disc, 0.95) <= 1.2, "disc p95");
 }
 
 /// Solar panels, paving checkers, road crosses, manholes, pyramid roofs,

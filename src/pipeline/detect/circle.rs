@@ -13,8 +13,9 @@
 //! 4. Perspective moves an ellipse's centre off the circle's projected centre.
 //!    With two concentric rings the true centre is recovered exactly: for the
 //!    conics C1, C3 of the inner and outer ring, it is the eigenvector of
-//!    C1^-1 C3 for its single eigenvalue (the other two are equal). A disc
-//!    alone keeps its ellipse centre (the bias is ~0.01 px for mild tilt).
+//!    C1^-1 C3 for its single eigenvalue (the other two are equal). For a
+//!    disc, the board's four sides give the plane's vanishing line, and the
+//!    centre is that line's pole with respect to the disc's conic.
 
 use opencv::core::{Mat, Point2f, RotatedRect, Vector};
 use opencv::imgproc;
@@ -163,10 +164,14 @@ impl CircleDetector {
                 .unwrap_or(e.c);
             (c, 2.0 * outer.radius())
         } else {
-            if !board_is_square(img, &e, pass.polarity[0]) {
-                return None;
-            }
-            (e.c, 2.0 * e.radius())
+            let horizon = board_horizon(img, &e, pass.polarity[0])?;
+            // The disc's centre is the pole of the board plane's vanishing
+            // line with respect to the disc's conic (exact under perspective;
+            // the ellipse's own centre is biased).
+            let c = pole(&e, &horizon)
+                .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
+                .unwrap_or(e.c);
+            (c, 2.0 * e.radius())
         };
         if !self.sizes.accepts(size) || rms > MAX_FIT_RMS_PX + 0.01 * e.radius() {
             return None;
@@ -333,7 +338,10 @@ fn rms(e: &Ellipse, points: &[Pt]) -> f64 {
 
 /// A disc's board: the other colour, uniform out to 1.25x the disc's radius
 /// on most rays, ending in a square of the designed proportions.
-fn board_is_square(img: &GreyView, e: &Ellipse, polarity: f64) -> bool {
+/// Returns the image of the board plane's line at infinity (homogeneous, in
+/// coordinates relative to the disc's centre), from the vanishing points of
+/// its opposite sides; None when there is no such board.
+fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Option<[f64; 3]> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
     let mut uniform = 0;
@@ -374,11 +382,11 @@ fn board_is_square(img: &GreyView, e: &Ellipse, polarity: f64) -> bool {
         }
     }
     if (uniform as f64) < 0.8 * n as f64 || (ends.len() as f64) < 0.6 * n as f64 {
-        return false;
+        return None;
     }
     // Square fit: half-side estimates from each end point for every
     // orientation; keep the orientation with most agreeing points.
-    let mut best = (0usize, 0.0);
+    let mut best = (0usize, 0.0, 0.0);
     for deg in 0..90 {
         let psi = (deg as f64).to_radians();
         let halves: Vec<f64> = ends
@@ -394,7 +402,7 @@ fn board_is_square(img: &GreyView, e: &Ellipse, polarity: f64) -> bool {
             .filter(|h| (*h - half).abs() < 0.07 * half)
             .count();
         if agree > best.0 {
-            best = (agree, half);
+            best = (agree, half, psi);
         }
     }
     let ratio = best.1 / e.radius();
@@ -402,9 +410,53 @@ fn board_is_square(img: &GreyView, e: &Ellipse, polarity: f64) -> bool {
     // square's corners lie sqrt 2 farther out than its sides' middles.
     let reach: Vec<f64> = ends.iter().map(|p| p.0.hypot(p.1)).collect();
     let spread = pr::quantile(&reach, 0.9) / pr::quantile(&reach, 0.1);
-    (best.0 as f64) >= 0.6 * n as f64
+    let square = (best.0 as f64) >= 0.6 * n as f64
         && spread >= 1.2
-        && (BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio)
+        && (BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio);
+    if !square {
+        return None;
+    }
+    // One line per side from the end points away from the corners.
+    let psi = best.2;
+    let mut sides: [Vec<Pt>; 4] = Default::default();
+    for p in &ends {
+        let a = (p.1.atan2(p.0) - psi).rem_euclid(std::f64::consts::TAU);
+        let k = (a / std::f64::consts::FRAC_PI_2).round() as usize % 4;
+        let off = (a - k as f64 * std::f64::consts::FRAC_PI_2).abs();
+        if off.min(std::f64::consts::TAU - off) < 30f64.to_radians() {
+            sides[k].push(*p);
+        }
+    }
+    let mut lines = [[0.0; 3]; 4];
+    for (k, side) in sides.iter().enumerate() {
+        if side.len() < 4 {
+            return None;
+        }
+        let (p, d) = super::refine::fit_line(side)?;
+        lines[k] = cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]);
+    }
+    let (v1, v2) = (cross3(lines[0], lines[2]), cross3(lines[1], lines[3]));
+    Some(cross3(v1, v2))
+}
+
+fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Pole of line `l` (homogeneous, relative to `e.c`) with respect to the
+/// ellipse: C^-1 l, back in tile pixels.
+fn pole(e: &Ellipse, l: &[f64; 3]) -> Option<Pt> {
+    let c = geometry::invert3(&e.conic(e.c))?;
+    let x = [
+        c[0] * l[0] + c[1] * l[1] + c[2] * l[2],
+        c[3] * l[0] + c[4] * l[1] + c[5] * l[2],
+        c[6] * l[0] + c[7] * l[1] + c[8] * l[2],
+    ];
+    (x[2].abs() > 1e-12).then(|| (x[0] / x[2] + e.c.0, x[1] / x[2] + e.c.1))
 }
 
 /// Image of the common centre of two concentric circles seen as ellipses

@@ -164,6 +164,35 @@ pub fn random_scene(width: usize, height: usize, markers: usize, seed: u64) -> S
     }
 }
 
+/// `count` cells laid over a frame in near-square rows and columns, one
+/// target per cell.
+#[derive(Debug, Clone, Copy)]
+pub struct Grid {
+    cols: usize,
+    cell: (f64, f64),
+}
+
+impl Grid {
+    pub fn new(width: usize, height: usize, count: usize) -> Grid {
+        let cols = ((count as f64 * width as f64 / height as f64).sqrt().ceil() as usize).max(1);
+        let rows = count.div_ceil(cols);
+        Grid {
+            cols,
+            cell: (width as f64 / cols as f64, height as f64 / rows as f64),
+        }
+    }
+
+    /// Centre of cell `i`, moved by up to `jitter` of the cell each way.
+    pub fn position(&self, i: usize, jitter: f64, rng: &mut Rng) -> (f64, f64) {
+        let (c, r) = ((i % self.cols) as f64, (i / self.cols) as f64);
+        let (cw, ch) = self.cell;
+        (
+            cw * (c + 0.5) + rng.range(-jitter, jitter) * cw,
+            ch * (r + 0.5) + rng.range(-jitter, jitter) * ch,
+        )
+    }
+}
+
 /// A frame of `count` printed targets of `mode` (crosshair: crosses and
 /// checkers; circle: bullseyes and discs) with sizes in `sizes`, on a grid
 /// with jitter, under the conditions aerial frames show: any rotation, mild
@@ -179,12 +208,9 @@ pub fn printed_scene(
     seed: u64,
 ) -> Scene {
     let mut rng = Rng::new(seed);
-    let cols = ((count as f64 * width as f64 / height as f64).sqrt().ceil() as usize).max(1);
-    let rows = count.div_ceil(cols);
-    let (cw, ch) = (width as f64 / cols as f64, height as f64 / rows as f64);
+    let grid = Grid::new(width, height, count);
     let printed = (0..count)
         .map(|i| {
-            let (c, r) = (i % cols, i / cols);
             let design = match (mode, i % 2) {
                 (MarkerType::Circle, 0) => PrintedDesign::Bullseye,
                 (MarkerType::Circle, _) => PrintedDesign::Disc {
@@ -198,10 +224,7 @@ pub fn printed_scene(
             };
             PrintedSpec {
                 design,
-                center: (
-                    cw * (c as f64 + 0.5) + rng.range(-0.12, 0.12) * cw,
-                    ch * (r as f64 + 0.5) + rng.range(-0.12, 0.12) * ch,
-                ),
+                center: grid.position(i, 0.12, &mut rng),
                 size_px: rng.range(sizes.0, sizes.1),
                 rotation_deg: rng.range(0.0, 360.0),
                 perspective: rng.range(0.0, 0.05),

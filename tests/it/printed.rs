@@ -120,12 +120,7 @@ fn lookalike_clutter_gives_no_detection() {
     for seed in 0..3 {
         let scene = clutter_scene(2400, 1800, 700 + seed);
         let name = format!("clutter{seed}.png");
-        let keep = std::env::var("GCP_KEEP").ok();
-        let out = keep
-            .as_deref()
-            .map(std::path::Path::new)
-            .unwrap_or(dir.path());
-        let (path, _) = write_scene(out, &name, &scene, SampleFormat::Png, None);
+        let (path, _) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);
         let result = run_one(&path, &options("EPSG:4326", &modes));
         let found: Vec<_> = result
             .targets

@@ -10,7 +10,7 @@ use gcp_tagger::pipeline::detect::{DetectorConfig, MarkerType};
 use gcp_tagger::pipeline::frame::{FrameOptions, FrameResult, Target};
 use gcp_tagger::pipeline::georef::TargetCrs;
 use gcp_tagger::synth::{
-    render, write_image, Clutter, GeoSpec, MarkerSpec, Rng, SampleFormat, Scene, Truth,
+    render, write_image, Clutter, GeoSpec, Grid, MarkerSpec, Rng, SampleFormat, Scene, Truth,
 };
 
 /// Default options for a pipeline run in tests.
@@ -75,24 +75,16 @@ pub fn grid_scene(
     seed: u64,
 ) -> Scene {
     let mut rng = Rng::new(seed);
-    let cols = ((count as f64 * width as f64 / height as f64).sqrt().ceil() as usize).max(1);
-    let rows = count.div_ceil(cols);
-    let (cw, ch) = (width as f64 / cols as f64, height as f64 / rows as f64);
+    let grid = Grid::new(width, height, count);
     let markers = (0..count)
-        .map(|i| {
-            let (c, r) = (i % cols, i / cols);
-            MarkerSpec {
-                marker_type,
-                dictionary: dictionary.to_string(),
-                id: (i as u32 * 3 + 1) % 30,
-                center: (
-                    cw * (c as f64 + 0.5) + rng.range(-0.15, 0.15) * cw,
-                    ch * (r as f64 + 0.5) + rng.range(-0.15, 0.15) * ch,
-                ),
-                side_px: rng.range(sides.0, sides.1),
-                rotation_deg: rng.range(0.0, 360.0),
-                perspective: rng.range(0.0, 0.05),
-            }
+        .map(|i| MarkerSpec {
+            marker_type,
+            dictionary: dictionary.to_string(),
+            id: (i as u32 * 3 + 1) % 30,
+            center: grid.position(i, 0.15, &mut rng),
+            side_px: rng.range(sides.0, sides.1),
+            rotation_deg: rng.range(0.0, 360.0),
+            perspective: rng.range(0.0, 0.05),
         })
         .collect();
     Scene {

@@ -131,7 +131,7 @@ impl CircleDetector {
 
     fn analyse(&self, img: &GreyView, start: Ellipse) -> Option<Found> {
         let mut e = start;
-        let mut pass = rays(img, &e, 3)?;
+        let mut pass = rays(img, &e)?;
         let bullseye = is_bullseye(&pass);
         let mut outer = None;
         for _ in 0..2 {
@@ -140,7 +140,7 @@ impl CircleDetector {
                 outer = Some(fit(&pass.edges[2])?);
             }
             e = inner;
-            pass = rays(img, &e, 3)?;
+            pass = rays(img, &e)?;
         }
         let n = pass.rays as f64;
         let edges_used = if bullseye { 3 } else { 1 };
@@ -254,8 +254,9 @@ fn is_bullseye(p: &RayPass) -> bool {
 }
 
 /// Samples rays through the ellipse frame and finds midpoint crossings
-/// near s = 1..=`edges`.
-fn rays(img: &GreyView, e: &Ellipse, edges: usize) -> Option<RayPass> {
+/// near s = 1, 2 and 3.
+fn rays(img: &GreyView, e: &Ellipse) -> Option<RayPass> {
+    let edges = 3;
     let n = ((std::f64::consts::TAU * e.a.max(e.b)).round() as usize).clamp(32, 360);
     let mut out = RayPass {
         edges: [Vec::new(), Vec::new(), Vec::new()],

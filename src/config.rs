@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use crate::pipeline::memory::default_max_ram_bytes;
+use crate::storage::s3::S3Config;
 
 /// Flags of `serve`.
 #[derive(Args, Debug, Clone)]
@@ -55,6 +56,27 @@ pub struct ServeArgs {
     /// On SIGTERM/SIGINT, seconds running jobs get to finish before they are stopped and left queued.
     #[arg(long, env = "GCP_TAGGER_SHUTDOWN_GRACE_SECS", default_value_t = 30)]
     pub shutdown_grace_secs: u64,
+    /// S3-compatible endpoint for s3:// sources (MinIO, Ceph), e.g. http://127.0.0.1:9000 (default: AWS_ENDPOINT_URL, else AWS).
+    #[arg(long, env = "GCP_TAGGER_S3_ENDPOINT")]
+    pub s3_endpoint: Option<String>,
+    /// S3 region (default: AWS_REGION / AWS_DEFAULT_REGION, else us-east-1).
+    #[arg(long, env = "GCP_TAGGER_S3_REGION")]
+    pub s3_region: Option<String>,
+    /// Buckets clients may name in s3:// sources and results_to, comma separated (default: any bucket at the endpoint).
+    #[arg(long = "s3-allow-bucket", env = "GCP_TAGGER_S3_ALLOW_BUCKETS", value_delimiter = ',')]
+    pub s3_allow_buckets: Vec<String>,
+    /// Objects downloaded at once.
+    #[arg(long, env = "GCP_TAGGER_S3_CONCURRENCY", default_value_t = 4)]
+    pub s3_concurrency: usize,
+    /// Fetched frames that may wait in the spool for a worker.
+    #[arg(long, env = "GCP_TAGGER_S3_READ_AHEAD", default_value_t = 8)]
+    pub s3_read_ahead: usize,
+    /// Longest one object download may take, in seconds (100 MB at 100 kB/s fits).
+    #[arg(long, env = "GCP_TAGGER_S3_TIMEOUT_SECS", default_value_t = 1800)]
+    pub s3_timeout_secs: u64,
+    /// Skip the MD5 check of downloads against plain ETags (for stores whose ETags are not MD5s, e.g. SSE-KMS).
+    #[arg(long, env = "GCP_TAGGER_S3_NO_MD5_CHECK")]
+    pub s3_no_md5_check: bool,
 }
 
 /// A setting of `serve` that cannot work.
@@ -63,6 +85,22 @@ pub struct ServeArgs {
 pub struct ConfigError(pub String);
 
 impl ServeArgs {
+    /// The S3 client settings.
+    pub fn s3_config(&self) -> S3Config {
+        S3Config {
+            endpoint: self.s3_endpoint.clone(),
+            region: self.s3_region.clone(),
+            allowed_buckets: self
+                .s3_allow_buckets
+                .iter()
+                .map(|b| b.trim().to_string())
+                .filter(|b| !b.is_empty())
+                .collect(),
+            verify_md5: !self.s3_no_md5_check,
+            request_timeout_secs: self.s3_timeout_secs,
+        }
+    }
+
     /// The process memory limit in bytes.
     pub fn max_ram_bytes(&self) -> Result<u64, ConfigError> {
         match self.max_ram_gb {
@@ -95,6 +133,18 @@ impl ServeArgs {
             return Err(ConfigError(
                 "--max-frame-mb must be positive and at most --max-request-mb".into(),
             ));
+        }
+        if self.s3_concurrency == 0 || self.s3_read_ahead == 0 || self.s3_timeout_secs == 0 {
+            return Err(ConfigError(
+                "--s3-concurrency, --s3-read-ahead and --s3-timeout-secs must be positive".into(),
+            ));
+        }
+        if let Some(e) = &self.s3_endpoint {
+            if !(e.starts_with("http://") || e.starts_with("https://")) {
+                return Err(ConfigError(format!(
+                    "--s3-endpoint must be an http:// or https:// URL, got {e:?}"
+                )));
+            }
         }
         if self.max_frames_per_request == 0 {
             return Err(ConfigError(

@@ -15,7 +15,9 @@ use tokio::time::Instant;
 
 use crate::api::{self, AppState, HttpConfig, UploadLimits};
 use crate::config::ServeArgs;
-use crate::jobs::{PoolConfig, Store, WorkerPool};
+use crate::jobs::fetch::{self, FetchConfig};
+use crate::jobs::{export, PoolConfig, Store, WorkerPool};
+use crate::storage::s3::S3;
 use crate::storage::DataDir;
 use crate::telemetry::Metrics;
 
@@ -42,6 +44,24 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
     );
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
     let ready = Arc::new(AtomicBool::new(false));
+    let s3 = Arc::new(S3::new(args.s3_config()));
+    let fetcher = tokio::spawn(fetch::run(
+        store.clone(),
+        data.clone(),
+        s3.clone(),
+        FetchConfig {
+            concurrency: args.s3_concurrency,
+            read_ahead: args.s3_read_ahead,
+            max_frame_bytes: args.max_frame_mb << 20,
+        },
+        shutdown_rx.clone(),
+    ));
+    let exporter = tokio::spawn(export::run(
+        store.clone(),
+        data.clone(),
+        s3.clone(),
+        shutdown_rx.clone(),
+    ));
     let state = AppState {
         store: store.clone(),
         data,
@@ -54,6 +74,7 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
         },
         shutdown: shutdown_rx.clone(),
         ready: ready.clone(),
+        s3,
     };
     let app = api::router(
         state,
@@ -113,6 +134,13 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
         tracing::warn!("open connections dropped at the end of the grace period");
     }
     tokio::task::spawn_blocking(move || pool.join()).await?;
+    // Fetches cut off here start again at the next start; an export
+    // in progress finishes (one PUT per file) or is retried then.
+    let _ = tokio::time::timeout(Duration::from_secs(5), async {
+        let _ = fetcher.await;
+        let _ = exporter.await;
+    })
+    .await;
     tracing::info!("stopped");
     Ok(())
 }

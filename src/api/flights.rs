@@ -10,12 +10,22 @@ use uuid::Uuid;
 use super::error::{ApiError, Problem};
 use super::extract::{ApiQuery, IdPath};
 use super::jobs::UploadQuery;
+use super::sources::{self, SourceRequest};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{results, watch, AppState};
 use crate::jobs::params::PARAM_KEYS;
-use crate::jobs::{FlightState, JobParams};
+use crate::jobs::{FlightRecord, FlightState, JobParams, JobRecord};
 use crate::pipeline::output::Format;
+
+/// Keys of an upload's query string besides the detection parameters.
+#[derive(Debug, Default)]
+pub struct Extras {
+    /// `name=`: a raw body's frame name.
+    pub name: Option<String>,
+    /// `results_to=`: where a new flight's results are written.
+    pub results_to: Option<String>,
+}
 
 /// Parses and checks the detection parameters of a query string; `extra`
 /// names the other keys the route takes. Unknown keys are refused, so a
@@ -23,15 +33,17 @@ use crate::pipeline::output::Format;
 pub async fn checked_params(
     query: Option<&str>,
     extra: &[&'static str],
-) -> Result<(JobParams, Option<String>), ApiError> {
+) -> Result<(JobParams, Extras), ApiError> {
     let pairs: Vec<(String, String)> = form_urlencoded::parse(query.unwrap_or("").as_bytes())
         .into_owned()
         .collect();
-    let mut name = None;
+    let mut extras = Extras::default();
     for (k, v) in &pairs {
         if extra.contains(&k.as_str()) {
-            if k == "name" {
-                name = Some(v.clone());
+            match k.as_str() {
+                "name" => extras.name = Some(v.clone()),
+                "results_to" => extras.results_to = Some(v.clone()),
+                _ => {}
             }
         } else if !PARAM_KEYS.contains(&k.as_str()) {
             return Err(ApiError::bad_request(
@@ -49,7 +61,7 @@ pub async fn checked_params(
     let (canonical, _) = tokio::task::spawn_blocking(move || params.check())
         .await
         .map_err(|e| ApiError::internal("checking parameters", e))??;
-    Ok((canonical, name))
+    Ok((canonical, extras))
 }
 
 /// Frames of a flight as a multipart form.
@@ -62,21 +74,31 @@ pub struct FlightUpload {
 }
 
 /// Submits a flight: a multipart form with one file part per frame
-/// (`curl -F f=@a.jpg -F f=@b.jpg '.../v1/flights?crs=EPSG:32611'`). Each
-/// frame becomes a queued job; a part that is not an image becomes a failed
-/// job with the reason, and the other frames go on.
+/// (`curl -F f=@a.jpg -F f=@b.jpg '.../v1/flights?crs=EPSG:32611'`), or
+/// frames in object storage as JSON (`{"sources": ["s3://bucket/flight/"],
+/// "results_to": "s3://bucket/out/"}`). Each frame becomes a job; a part or
+/// object that is not an image becomes a failed job with the reason, and
+/// the other frames go on. Sources are checked before anything is
+/// recorded: a missing bucket or object, an empty prefix or refused
+/// credentials fail the request.
 #[utoipa::path(
     post, path = "/v1/flights", tag = "flights",
-    params(UploadQuery),
-    request_body(content((FlightUpload = "multipart/form-data"))),
+    params(UploadQuery,
+        ("results_to" = Option<String>, Query, description = "Multipart uploads: `s3://bucket/prefix/` to write the results to when the flight finishes")),
+    request_body(content(
+        (FlightUpload = "multipart/form-data"),
+        (SourceRequest = "application/json"),
+    )),
     responses(
         (status = 201, description = "Flight created; its jobs are queued", body = FlightSubmitted,
             headers(("Location" = String, description = "The flight's URL"))),
         (status = 400, description = "Malformed request", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "A bucket outside the server's allow-list", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "Two frames of one name", body = Problem, content_type = "application/problem+json"),
         (status = 413, description = "Frame or request too large", body = Problem, content_type = "application/problem+json"),
-        (status = 415, description = "Not multipart/form-data", body = Problem, content_type = "application/problem+json"),
-        (status = 422, description = "Invalid detection parameter", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not multipart/form-data or JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid detection parameter; a source that names no bucket, object or image", body = Problem, content_type = "application/problem+json"),
+        (status = 502, description = "The object store refused the server's credentials or cannot be reached", body = Problem, content_type = "application/problem+json"),
     )
 )]
 pub async fn submit_flight(
@@ -84,19 +106,45 @@ pub async fn submit_flight(
     RawQuery(query): RawQuery,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let (params, _) = checked_params(query.as_deref(), &[]).await?;
-    let upload = upload::receive(&state, req, Expect::Many, None).await?;
-    let (store, data) = (state.store.clone(), state.data.clone());
-    let (flight, jobs) = tokio::task::spawn_blocking(move || {
-        upload::commit(&store, &data, upload, Target::NewFlight(params))
-    })
-    .await
-    .map_err(|e| ApiError::internal("recording the flight", e))??;
+    let (params, extras) = checked_params(query.as_deref(), &["results_to"]).await?;
+    let (flight, jobs, skipped) = if sources::is_json(&req) {
+        if extras.results_to.is_some() {
+            return Err(ApiError::bad_request(
+                "unknown_parameter",
+                "with a JSON body, results_to goes in the body",
+            )
+            .with_field("results_to"));
+        }
+        let sourced = sources::receive(&state, req, true).await?;
+        let store = state.store.clone();
+        let target = Target::NewFlight(params, sourced.results_to);
+        let (flight, jobs) = tokio::task::spawn_blocking(move || {
+            upload::check_names(&store, &target, sourced.jobs.iter().map(|j| j.image.as_str()))?;
+            upload::record(&store, &sourced.jobs, target)
+        })
+        .await
+        .map_err(|e| ApiError::internal("recording the flight", e))??;
+        (flight, jobs, sourced.skipped)
+    } else {
+        let results_to = match extras.results_to {
+            Some(raw) => Some(sources::checked_results_to(&state, &raw)?),
+            None => None,
+        };
+        let upload = upload::receive(&state, req, Expect::Many, None).await?;
+        let (store, data) = (state.store.clone(), state.data.clone());
+        let (flight, jobs) = tokio::task::spawn_blocking(move || {
+            upload::commit(&store, &data, upload, Target::NewFlight(params, results_to))
+        })
+        .await
+        .map_err(|e| ApiError::internal("recording the flight", e))??;
+        (flight, jobs, Vec::new())
+    };
     let view = FlightView::new(&flight, &jobs);
     tracing::info!(flight.id = %flight.id, frames = jobs.len(), "flight submitted");
     let body = FlightSubmitted {
         jobs: jobs.iter().map(JobView::new).collect(),
         flight: view,
+        skipped,
     };
     Ok((
         StatusCode::CREATED,
@@ -116,15 +164,19 @@ pub async fn submit_flight(
     request_body(content(
         (FlightUpload = "multipart/form-data"),
         (Vec<u8> = "application/octet-stream"),
+        (SourceRequest = "application/json"),
     )),
     responses(
         (status = 201, description = "Jobs created", body = FlightSubmitted,
             headers(("Location" = String, description = "The flight's URL"))),
         (status = 400, description = "Malformed request", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "A bucket outside the server's allow-list", body = Problem, content_type = "application/problem+json"),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "A frame of that name is in the flight", body = Problem, content_type = "application/problem+json"),
         (status = 413, description = "Frame or request too large", body = Problem, content_type = "application/problem+json"),
         (status = 415, description = "Unsupported body type", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "A source that names no bucket, object or image", body = Problem, content_type = "application/problem+json"),
+        (status = 502, description = "The object store refused the server's credentials or cannot be reached", body = Problem, content_type = "application/problem+json"),
     )
 )]
 pub async fn add_frames(
@@ -148,6 +200,25 @@ pub async fn add_frames(
     }
     if state.store.flight(id).is_none() {
         return Err(ApiError::not_found("flight", id));
+    }
+    if sources::is_json(&req) {
+        if name.is_some() {
+            return Err(ApiError::bad_request(
+                "unknown_parameter",
+                "name= is for a raw frame; sources are named by their keys",
+            )
+            .with_field("name"));
+        }
+        let sourced = sources::receive(&state, req, false).await?;
+        let store = state.store.clone();
+        let (flight, jobs) = tokio::task::spawn_blocking(move || {
+            let target = Target::Flight(id);
+            upload::check_names(&store, &target, sourced.jobs.iter().map(|j| j.image.as_str()))?;
+            upload::record(&store, &sourced.jobs, target)
+        })
+        .await
+        .map_err(|e| ApiError::internal("recording the frames", e))??;
+        return Ok(submitted(&state, flight, jobs, sourced.skipped));
     }
     let is_multipart = req
         .headers()
@@ -173,17 +244,28 @@ pub async fn add_frames(
     })
     .await
     .map_err(|e| ApiError::internal("recording the frames", e))??;
-    let all = state.store.flight_jobs(id).unwrap_or_default();
+    Ok(submitted(&state, flight, jobs, Vec::new()))
+}
+
+/// The 201 answer to frames added to a flight.
+fn submitted(
+    state: &AppState,
+    flight: FlightRecord,
+    jobs: Vec<JobRecord>,
+    skipped: Vec<String>,
+) -> Response {
+    let all = state.store.flight_jobs(flight.id).unwrap_or_default();
     let body = FlightSubmitted {
         flight: FlightView::new(&flight, &all),
         jobs: jobs.iter().map(JobView::new).collect(),
+        skipped,
     };
-    Ok((
+    (
         StatusCode::CREATED,
         [(header::LOCATION, body.flight.links.self_.clone())],
         Json(body),
     )
-        .into_response())
+        .into_response()
 }
 
 /// Lists flights, oldest first, a page at a time.

@@ -81,8 +81,8 @@ pub async fn submit_job(
     RawQuery(query): RawQuery,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let (params, name) = checked_params(query.as_deref(), &["name"]).await?;
-    let upload = upload::receive(&state, req, Expect::One, name).await?;
+    let (params, extras) = checked_params(query.as_deref(), &["name"]).await?;
+    let upload = upload::receive(&state, req, Expect::One, extras.name).await?;
     if let Some(Err(e)) = upload.parts.first().map(|p| &p.content) {
         let status = if e.code == "empty_frame" {
             StatusCode::BAD_REQUEST
@@ -98,7 +98,7 @@ pub async fn submit_job(
     }
     let (store, data) = (state.store.clone(), state.data.clone());
     let (_, jobs) = tokio::task::spawn_blocking(move || {
-        upload::commit(&store, &data, upload, Target::NewFlight(params))
+        upload::commit(&store, &data, upload, Target::NewFlight(params, None))
     })
     .await
     .map_err(|e| ApiError::internal("recording the job", e))??;

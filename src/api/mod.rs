@@ -10,6 +10,7 @@ pub mod flights;
 pub mod jobs;
 pub mod ops;
 pub mod results;
+pub mod sources;
 pub mod upload;
 pub mod views;
 pub mod watch;
@@ -34,6 +35,7 @@ use utoipa_swagger_ui::SwaggerUi;
 
 use crate::jobs::Store;
 use crate::pipeline::memory::RamBudget;
+use crate::storage::s3::S3;
 use crate::storage::DataDir;
 use crate::telemetry::{HttpLabels, Metrics};
 use error::ApiError;
@@ -47,6 +49,8 @@ pub struct AppState {
     pub metrics: Arc<Metrics>,
     pub budget: Arc<RamBudget>,
     pub limits: UploadLimits,
+    /// Object storage for `s3://` sources and result write-back.
+    pub s3: Arc<S3>,
     /// Becomes true when the server starts shutting down.
     pub shutdown: tokio::sync::watch::Receiver<bool>,
     /// Workers are running.

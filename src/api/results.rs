@@ -1,17 +1,13 @@
-//! Results as CSV or GeoJSON, rendered by the pipeline's own writers from
-//! the stored frame results, so the bytes equal the command line's for the
-//! same frames. A flight's frames are sorted by image name, as the command
-//! line sorts them, so the order jobs finished in never shows.
+//! Results as CSV or GeoJSON over HTTP: content negotiation and headers
+//! around [`crate::jobs::results::render_jobs`].
 
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 
 use super::error::ApiError;
 use super::AppState;
-use crate::jobs::{JobRecord, JobState};
-use crate::pipeline::frame::FrameResult;
-use crate::pipeline::georef::TargetCrs;
-use crate::pipeline::output::{render, Format};
+use crate::jobs::JobRecord;
+use crate::pipeline::output::Format;
 
 /// Media types of the two formats.
 pub const CSV_TYPE: &str = "text/csv; charset=utf-8";
@@ -55,19 +51,9 @@ pub async fn render_jobs(
     file_stem: String,
 ) -> Result<Response, ApiError> {
     let data = state.data.clone();
-    let text = tokio::task::spawn_blocking(move || -> Result<String, ApiError> {
-        let crs = TargetCrs::parse(&crs).map_err(|e| ApiError::internal("stored CRS", e))?;
-        let mut frames: Vec<FrameResult> = Vec::with_capacity(jobs.len());
-        for job in jobs.iter().filter(|j| j.state == JobState::Succeeded) {
-            let path = data.result_path(job.id);
-            let bytes = std::fs::read(&path)
-                .map_err(|e| ApiError::internal("cannot read a stored result", e))?;
-            let frame = serde_json::from_slice(&bytes)
-                .map_err(|e| ApiError::internal("cannot parse a stored result", e))?;
-            frames.push(frame);
-        }
-        frames.sort_by(|a, b| a.image.cmp(&b.image));
-        Ok(render(format, &frames, &crs))
+    let text = tokio::task::spawn_blocking(move || {
+        crate::jobs::results::render_jobs(&data, &jobs, &crs, format)
+            .map_err(|e| ApiError::internal("rendering results", e))
     })
     .await
     .map_err(|e| ApiError::internal("rendering results", e))??;

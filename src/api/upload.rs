@@ -326,8 +326,58 @@ fn disposition_filename(headers: &HeaderMap) -> Option<String> {
 
 /// Where the jobs of an upload go.
 pub enum Target {
-    NewFlight(JobParams),
+    /// A new flight with its parameters and, optionally, an
+    /// `s3://bucket/prefix/` its results are written to when it finishes.
+    NewFlight(JobParams, Option<String>),
     Flight(FlightId),
+}
+
+/// Refuses a name used twice in the request or already in the flight:
+/// names identify frames in results.
+pub fn check_names<'a>(
+    store: &crate::jobs::Store,
+    target: &Target,
+    names: impl Iterator<Item = &'a str>,
+) -> Result<(), ApiError> {
+    let mut seen: std::collections::HashSet<String> = match target {
+        Target::Flight(id) => store.flight_images(*id).into_iter().collect(),
+        Target::NewFlight(..) => Default::default(),
+    };
+    for name in names {
+        if !seen.insert(name.to_string()) {
+            return Err(ApiError::conflict(
+                "duplicate_image",
+                format!(
+                    "{name}: a frame of this name is already in the flight; names identify frames in results"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Records jobs in one store transaction, in a new flight or an existing one.
+pub fn record(
+    store: &crate::jobs::Store,
+    jobs: &[NewJob],
+    target: Target,
+) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
+    let recorded = match target {
+        Target::NewFlight(params, export_to) => {
+            store.create_flight(&params, jobs, export_to).map(|f| {
+                let jobs = store.flight_jobs(f.id).unwrap_or_default();
+                Some((f, jobs))
+            })
+        }
+        Target::Flight(id) => store
+            .add_to_flight(id, jobs)
+            .map(|r| r.and_then(|jobs| Some((store.flight(id)?, jobs)))),
+    };
+    match recorded {
+        Ok(Some(done)) => Ok(done),
+        Ok(None) => Err(ApiError::not_found("flight", "(deleted meanwhile)")),
+        Err(e) => Err(e.into()),
+    }
 }
 
 /// Moves an upload's frames into place and records them as jobs, in one
@@ -339,22 +389,7 @@ pub fn commit(
     mut upload: Upload,
     target: Target,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
-    let mut seen: Vec<String> = match &target {
-        Target::Flight(id) => store.flight_images(*id),
-        Target::NewFlight(_) => Vec::new(),
-    };
-    for part in &upload.parts {
-        if seen.contains(&part.image) {
-            return Err(ApiError::conflict(
-                "duplicate_image",
-                format!(
-                    "{}: a frame of this name is already in the flight; names identify frames in results",
-                    part.image
-                ),
-            ));
-        }
-        seen.push(part.image.clone());
-    }
+    check_names(store, &target, upload.parts.iter().map(|p| p.image.as_str()))?;
     let mut jobs = Vec::with_capacity(upload.parts.len());
     for part in upload.parts.iter_mut() {
         let id = Uuid::now_v7();
@@ -376,27 +411,14 @@ pub fn commit(
             ext,
             bytes: part.bytes,
             rejected,
+            source: None,
         });
     }
     sync_dir(&data.root().join("frames"));
-    let recorded = match target {
-        Target::NewFlight(params) => store.create_flight(&params, &jobs).map(|f| {
-            let jobs = store.flight_jobs(f.id).unwrap_or_default();
-            Some((f, jobs))
-        }),
-        Target::Flight(id) => store
-            .add_to_flight(id, &jobs)
-            .map(|r| r.and_then(|jobs| Some((store.flight(id)?, jobs)))),
-    };
-    match recorded {
-        Ok(Some(done)) => {
-            // Committed: the frames belong to their jobs now.
-            upload.parts.clear();
-            Ok(done)
-        }
-        Ok(None) => Err(ApiError::not_found("flight", "(deleted meanwhile)")),
-        Err(e) => Err(e.into()),
-    }
+    let done = record(store, &jobs, target)?;
+    // Committed: the frames belong to their jobs now.
+    upload.parts.clear();
+    Ok(done)
 }
 
 /// Makes renames in `dir` durable.

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
-use crate::jobs::model::{FlightState, JobError, JobRecord, JobState, Millis, StateCounts};
+use crate::jobs::model::{Export, FlightState, JobError, JobRecord, JobState, Millis, StateCounts};
 use crate::jobs::{FlightRecord, JobParams};
 
 /// Longest a request may wait for a change (`wait=`), in seconds.
@@ -62,6 +62,8 @@ pub struct JobView {
     pub error: Option<JobError>,
     /// A cancel was asked for and the job stops at its next tile.
     pub cancel_requested: bool,
+    /// The `s3://bucket/key` the frame is fetched from (frames submitted as sources).
+    pub source: Option<String>,
     pub created_at: String,
     pub started_at: Option<String>,
     pub finished_at: Option<String>,
@@ -89,6 +91,7 @@ impl JobView {
             attempts: j.attempts,
             error: j.error.clone(),
             cancel_requested: j.cancel_requested,
+            source: j.source.clone(),
             created_at: timestamp(j.created_at),
             started_at: j.started_at.map(timestamp),
             finished_at: j.finished_at.map(timestamp),
@@ -141,6 +144,8 @@ pub struct FlightView {
     pub created_at: String,
     /// When the last job ended, once every job has.
     pub finished_at: Option<String>,
+    /// Writing the results to object storage when the flight finishes (if asked for).
+    pub export: Option<Export>,
     pub links: FlightLinks,
 }
 
@@ -171,6 +176,7 @@ impl FlightView {
             jobs: counts,
             created_at: timestamp(f.created_at),
             finished_at,
+            export: f.export.clone(),
             links: FlightLinks {
                 jobs: format!("{base}/jobs"),
                 frames: format!("{base}/frames"),
@@ -187,8 +193,11 @@ impl FlightView {
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct FlightSubmitted {
     pub flight: FlightView,
-    /// The jobs this request created, in the order of its parts.
+    /// The jobs this request created, in the order of its parts (sources: by key).
     pub jobs: Vec<JobView>,
+    /// Keys under a submitted prefix that were not taken: not an image by extension.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub skipped: Vec<String>,
 }
 
 /// A page of jobs.

@@ -2,9 +2,12 @@
 //! RAM-bounded worker pool that runs the pipeline on them. Nothing here
 //! knows about HTTP.
 
+pub mod export;
+pub mod fetch;
 pub mod model;
 pub mod params;
 pub mod pool;
+pub mod results;
 pub mod store;
 
 pub use model::{FlightId, FlightRecord, FlightState, JobError, JobId, JobRecord, JobState};

@@ -15,6 +15,8 @@ pub type FlightId = Uuid;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum JobState {
+    /// Waiting for its frame to arrive from object storage.
+    Fetching,
     Queued,
     Running,
     Succeeded,
@@ -23,7 +25,8 @@ pub enum JobState {
 }
 
 impl JobState {
-    pub const ALL: [JobState; 5] = [
+    pub const ALL: [JobState; 6] = [
+        JobState::Fetching,
         JobState::Queued,
         JobState::Running,
         JobState::Succeeded,
@@ -33,6 +36,7 @@ impl JobState {
 
     pub fn as_str(self) -> &'static str {
         match self {
+            JobState::Fetching => "fetching",
             JobState::Queued => "queued",
             JobState::Running => "running",
             JobState::Succeeded => "succeeded",
@@ -100,6 +104,10 @@ pub struct JobRecord {
     pub tiles_total: u32,
     /// A cancel was asked for while the job was running.
     pub cancel_requested: bool,
+    /// `s3://bucket/key` for a frame fetched from object storage.
+    pub source: Option<String>,
+    /// The object's ETag when the job was submitted (fetches require it).
+    pub source_etag: Option<String>,
 }
 
 /// A submission's group of jobs, sharing one set of parameters.
@@ -108,6 +116,49 @@ pub struct FlightRecord {
     pub id: FlightId,
     pub created_at: Millis,
     pub params: JobParams,
+    /// Where the flight's results are written when it finishes.
+    pub export: Option<Export>,
+}
+
+/// Writing a flight's results back to object storage.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+pub struct Export {
+    /// The `s3://bucket/prefix/` the results go to.
+    pub to: String,
+    pub state: ExportState,
+    /// Why the last attempt failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// When the results were last written (milliseconds since the epoch).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub written_at: Option<Millis>,
+    pub attempts: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum ExportState {
+    /// Written when every job of the flight has ended.
+    Pending,
+    Written,
+    /// Gave up after several attempts; `error` says why.
+    Failed,
+}
+
+impl ExportState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ExportState::Pending => "pending",
+            ExportState::Written => "written",
+            ExportState::Failed => "failed",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<ExportState> {
+        [ExportState::Pending, ExportState::Written, ExportState::Failed]
+            .into_iter()
+            .find(|st| st.as_str() == s)
+    }
 }
 
 /// The state of a flight, derived from its jobs.
@@ -125,6 +176,7 @@ pub enum FlightState {
 /// Jobs of a flight counted by state.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, utoipa::ToSchema)]
 pub struct StateCounts {
+    pub fetching: u32,
     pub queued: u32,
     pub running: u32,
     pub succeeded: u32,
@@ -135,6 +187,7 @@ pub struct StateCounts {
 impl StateCounts {
     pub fn add(&mut self, state: JobState) {
         *match state {
+            JobState::Fetching => &mut self.fetching,
             JobState::Queued => &mut self.queued,
             JobState::Running => &mut self.running,
             JobState::Succeeded => &mut self.succeeded,
@@ -144,7 +197,7 @@ impl StateCounts {
     }
 
     pub fn flight_state(&self) -> FlightState {
-        if self.queued + self.running == 0 {
+        if self.fetching + self.queued + self.running == 0 {
             FlightState::Finished
         } else if self.running + self.succeeded + self.failed + self.canceled == 0 {
             FlightState::Queued

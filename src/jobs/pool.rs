@@ -173,6 +173,12 @@ impl Worker {
             self.metrics.megapixels.inc_by(megapixels);
         }
         match self.store.finish(job.id, &outcome) {
+            // A frame fetched from object storage is still there: the
+            // local copy goes once the job has ended, so a long flight
+            // does not fill the disk.
+            Ok(true) if job.source.is_some() && !matches!(outcome, Outcome::Interrupted) => {
+                self.data.remove_frame(job.id, &job.ext)
+            }
             Ok(true) => {}
             // Deleted while it ran: drop what it wrote.
             Ok(false) => self.data.remove_job_files(job.id, &job.ext),

@@ -39,6 +39,9 @@ pub struct NewJob {
     pub bytes: u64,
     /// Set for uploads refused at submission: the job is created failed.
     pub rejected: Option<JobError>,
+    /// For a frame in object storage: its `s3://` URL and ETag. The job
+    /// starts `fetching` and is queued once the frame is in the spool.
+    pub source: Option<(String, Option<String>)>,
 }
 
 /// A job handed to a worker.
@@ -77,6 +80,9 @@ pub struct JobFilter {
 /// Queue figures for metrics and readiness.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct QueueStats {
+    pub fetching: usize,
+    /// Queued jobs whose frame was fetched from object storage.
+    pub fetched: usize,
     pub queued: usize,
     pub running: usize,
 }
@@ -89,6 +95,8 @@ struct State {
     flight_jobs: HashMap<FlightId, Vec<JobId>>,
     /// Queued jobs by queue order.
     queue: BTreeSet<(i64, JobId)>,
+    /// Jobs waiting for their frame from object storage, in queue order.
+    fetching: BTreeSet<(i64, JobId)>,
     cancel: HashMap<JobId, Arc<AtomicBool>>,
     running: usize,
 }
@@ -130,6 +138,31 @@ CREATE TABLE IF NOT EXISTS jobs (
 CREATE INDEX IF NOT EXISTS jobs_flight ON jobs(flight_id);
 ";
 
+/// Columns added after the first release: (table, column, type). Opening
+/// an older data folder adds them.
+const ADDED_COLUMNS: [(&str, &str, &str); 7] = [
+    ("jobs", "source", "TEXT"),
+    ("jobs", "source_etag", "TEXT"),
+    ("flights", "export_to", "TEXT"),
+    ("flights", "export_state", "TEXT"),
+    ("flights", "export_error", "TEXT"),
+    ("flights", "export_written_at", "INTEGER"),
+    ("flights", "export_attempts", "INTEGER NOT NULL DEFAULT 0"),
+];
+
+fn add_missing_columns(conn: &Connection) -> Result<(), StoreError> {
+    for (table, column, kind) in ADDED_COLUMNS {
+        let mut stmt = conn.prepare(&format!("PRAGMA table_info({table})"))?;
+        let names: Vec<String> = stmt
+            .query_map([], |r| r.get::<_, String>(1))?
+            .collect::<Result<_, _>>()?;
+        if !names.iter().any(|n| n == column) {
+            conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {column} {kind}"))?;
+        }
+    }
+    Ok(())
+}
+
 impl Store {
     /// Opens (or creates) the store at `path` and loads it. Jobs that were
     /// running when the process stopped go back to the queue.
@@ -142,6 +175,7 @@ impl Store {
         conn.pragma_update(None, "foreign_keys", "ON")?;
         conn.busy_timeout(Duration::from_secs(5))?;
         conn.execute_batch(SCHEMA)?;
+        add_missing_columns(&conn)?;
         let requeued = conn.execute(
             "UPDATE jobs SET state = 'queued', started_at = NULL WHERE state = 'running'",
             [],
@@ -185,24 +219,37 @@ impl Store {
     }
 
     /// Records a new flight with its jobs in one transaction.
+    /// `export_to` is an `s3://bucket/prefix/` for the results, written
+    /// when every job has ended.
     pub fn create_flight(
         &self,
         params: &JobParams,
         jobs: &[NewJob],
+        export_to: Option<String>,
     ) -> Result<FlightRecord, StoreError> {
         let flight = FlightRecord {
             id: uuid::Uuid::now_v7(),
             created_at: now_millis(),
             params: params.clone(),
+            export: export_to.map(|to| Export {
+                to,
+                state: ExportState::Pending,
+                error: None,
+                written_at: None,
+                attempts: 0,
+            }),
         };
         let mut db = self.db();
         let tx = db.transaction()?;
         tx.execute(
-            "INSERT INTO flights (id, created_at, params) VALUES (?1, ?2, ?3)",
+            "INSERT INTO flights (id, created_at, params, export_to, export_state)
+             VALUES (?1, ?2, ?3, ?4, ?5)",
             params![
                 flight.id.to_string(),
                 flight.created_at,
-                serde_json::to_string(params).expect("params serialize")
+                serde_json::to_string(params).expect("params serialize"),
+                flight.export.as_ref().map(|e| e.to.clone()),
+                flight.export.as_ref().map(|e| e.state.as_str()),
             ],
         )?;
         let records = insert_jobs(&tx, flight.id, jobs)?;
@@ -229,8 +276,21 @@ impl Store {
         }
         let tx = db.transaction()?;
         let records = insert_jobs(&tx, flight, jobs)?;
+        // New frames mean new results: write them again at the end.
+        tx.execute(
+            "UPDATE flights SET export_state = 'pending', export_attempts = 0, export_error = NULL
+             WHERE id = ?1 AND export_to IS NOT NULL",
+            params![flight.to_string()],
+        )?;
         tx.commit()?;
-        add_jobs(&mut self.state(), records.clone());
+        let mut state = self.state();
+        if let Some(export) = state.flights.get_mut(&flight).and_then(|f| f.export.as_mut()) {
+            export.state = ExportState::Pending;
+            export.attempts = 0;
+            export.error = None;
+        }
+        add_jobs(&mut state, records.clone());
+        drop(state);
         self.work.notify_all();
         self.notify();
         Ok(Some(records))
@@ -292,7 +352,14 @@ impl Store {
 
     pub fn stats(&self) -> QueueStats {
         let state = self.state();
+        let fetched = state
+            .queue
+            .iter()
+            .filter(|(_, id)| state.jobs[id].source.is_some())
+            .count();
         QueueStats {
+            fetching: state.fetching.len(),
+            fetched,
             queued: state.queue.len(),
             running: state.running,
         }
@@ -351,6 +418,138 @@ impl Store {
             params,
             cancel,
         }))
+    }
+
+    /// The first `limit` jobs waiting for their frame, in queue order.
+    pub fn to_fetch(&self, limit: usize) -> Vec<JobRecord> {
+        let state = self.state();
+        state
+            .fetching
+            .iter()
+            .take(limit)
+            .map(|(_, id)| state.jobs[id].clone())
+            .collect()
+    }
+
+    /// A fetched frame is in `frames/`: the job joins the worker queue.
+    /// Returns `false` if the job was canceled or deleted meanwhile (the
+    /// caller removes the frame).
+    pub fn fetched(&self, id: JobId, ext: &str, bytes: u64) -> Result<bool, StoreError> {
+        let db = self.db();
+        let mut state = self.state();
+        let Some(job) = state.jobs.get(&id) else {
+            return Ok(false);
+        };
+        if job.state != JobState::Fetching {
+            return Ok(false);
+        }
+        let seq = job.seq;
+        db.execute(
+            "UPDATE jobs SET state = 'queued', ext = ?2, bytes = ?3 WHERE id = ?1",
+            params![id.to_string(), ext, bytes as i64],
+        )?;
+        state.fetching.remove(&(seq, id));
+        state.queue.insert((seq, id));
+        let job = state.jobs.get_mut(&id).expect("job exists");
+        job.state = JobState::Queued;
+        job.ext = ext.to_string();
+        job.bytes = bytes;
+        drop(state);
+        drop(db);
+        self.work.notify_all();
+        self.notify();
+        Ok(true)
+    }
+
+    /// A frame could not be fetched: the job fails with the reason.
+    pub fn fetch_failed(&self, id: JobId, error: &JobError) -> Result<(), StoreError> {
+        let db = self.db();
+        let mut state = self.state();
+        let Some(job) = state.jobs.get(&id) else {
+            return Ok(());
+        };
+        if job.state != JobState::Fetching {
+            return Ok(());
+        }
+        let (seq, now) = (job.seq, now_millis());
+        db.execute(
+            "UPDATE jobs SET state = 'failed', finished_at = ?2, error_code = ?3, error_message = ?4
+             WHERE id = ?1",
+            params![id.to_string(), now, error.code, error.message],
+        )?;
+        state.fetching.remove(&(seq, id));
+        let job = state.jobs.get_mut(&id).expect("job exists");
+        job.state = JobState::Failed;
+        job.finished_at = Some(now);
+        job.error = Some(error.clone());
+        drop(state);
+        drop(db);
+        self.notify();
+        Ok(())
+    }
+
+    /// Flights whose results are due to be written: export pending and
+    /// every job ended.
+    pub fn exports_due(&self) -> Vec<(FlightRecord, Vec<JobRecord>)> {
+        let state = self.state();
+        let mut due = Vec::new();
+        for flight in state.flights.values() {
+            if flight.export.as_ref().map(|e| e.state) != Some(ExportState::Pending) {
+                continue;
+            }
+            let jobs: Vec<JobRecord> = state.flight_jobs[&flight.id]
+                .iter()
+                .map(|id| state.jobs[id].clone())
+                .collect();
+            if jobs.iter().all(|j| j.state.is_terminal()) {
+                due.push((flight.clone(), jobs));
+            }
+        }
+        due
+    }
+
+    /// Records an export attempt: written, or failed with the reason
+    /// (`give_up` marks it failed for good, else it stays pending).
+    pub fn export_done(
+        &self,
+        flight: FlightId,
+        result: Result<(), String>,
+        give_up: bool,
+    ) -> Result<(), StoreError> {
+        let db = self.db();
+        let mut state = self.state();
+        let Some(export) = state.flights.get_mut(&flight).and_then(|f| f.export.as_mut()) else {
+            return Ok(());
+        };
+        export.attempts += 1;
+        match result {
+            Ok(()) => {
+                export.state = ExportState::Written;
+                export.error = None;
+                export.written_at = Some(now_millis());
+            }
+            Err(e) => {
+                export.error = Some(e);
+                if give_up {
+                    export.state = ExportState::Failed;
+                }
+            }
+        }
+        db.execute(
+            "UPDATE flights SET export_state = ?2, export_error = ?3, export_written_at = ?4,
+                 export_attempts = ?5 WHERE id = ?1",
+            params![
+                flight.to_string(),
+                export.state.as_str(),
+                export.error,
+                export.written_at,
+                export.attempts
+            ],
+        )?;
+        drop(state);
+        drop(db);
+        self.notify();
+        Ok(())
     }
 
     /// Wakes workers waiting in [`Store::claim_next`] (used at shutdown).
@@ -525,14 +724,17 @@ fn insert_jobs(
     let created = now_millis();
     let mut out = Vec::with_capacity(jobs.len());
     for new in jobs {
-        let (state, error, finished) = match &new.rejected {
-            Some(e) => (JobState::Failed, Some(e.clone()), Some(created)),
-            None => (JobState::Queued, None, None),
+        let (state, error, finished) = match (&new.rejected, &new.source) {
+            (Some(e), _) => (JobState::Failed, Some(e.clone()), Some(created)),
+            (None, Some(_)) => (JobState::Fetching, None, None),
+            (None, None) => (JobState::Queued, None, None),
         };
+        let (source, source_etag) = new.source.clone().unzip();
+        let source_etag = source_etag.flatten();
         tx.execute(
             "INSERT INTO jobs (id, flight_id, image, ext, bytes, state, created_at, finished_at,
-                 error_code, error_message)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                 error_code, error_message, source, source_etag)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
             params![
                 new.id.to_string(),
                 flight.to_string(),
@@ -544,6 +746,8 @@ fn insert_jobs(
                 finished,
                 error.as_ref().map(|e| e.code.clone()),
                 error.as_ref().map(|e| e.message.clone()),
+                source,
+                source_etag,
             ],
         )?;
         out.push(JobRecord {
@@ -565,6 +769,8 @@ fn insert_jobs(
             tiles_done: 0,
             tiles_total: 0,
             cancel_requested: false,
+            source,
+            source_etag,
         });
     }
     Ok(out)
@@ -572,8 +778,14 @@ fn insert_jobs(
 
 fn add_jobs(state: &mut State, records: Vec<JobRecord>) {
     for job in records {
-        if job.state == JobState::Queued {
-            state.queue.insert((job.seq, job.id));
+        match job.state {
+            JobState::Queued => {
+                state.queue.insert((job.seq, job.id));
+            }
+            JobState::Fetching => {
+                state.fetching.insert((job.seq, job.id));
+            }
+            _ => {}
         }
         state
             .flight_jobs
@@ -590,13 +802,14 @@ fn cancel_locked(
     job: &JobRecord,
 ) -> Result<JobRecord, StoreError> {
     match job.state {
-        JobState::Queued => {
+        JobState::Queued | JobState::Fetching => {
             let now = now_millis();
             db.execute(
                 "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1",
                 params![job.id.to_string(), now],
             )?;
             state.queue.remove(&(job.seq, job.id));
+            state.fetching.remove(&(job.seq, job.id));
             let rec = state.jobs.get_mut(&job.id).expect("job exists");
             rec.state = JobState::Canceled;
             rec.finished_at = Some(now);
@@ -616,6 +829,7 @@ fn cancel_locked(
 
 fn remove_locked(state: &mut State, job: &JobRecord) {
     state.queue.remove(&(job.seq, job.id));
+    state.fetching.remove(&(job.seq, job.id));
     if let Some(flag) = state.cancel.remove(&job.id) {
         flag.store(true, Ordering::SeqCst);
         state.running -= 1;
@@ -625,32 +839,44 @@ fn remove_locked(state: &mut State, job: &JobRecord) {
 
 fn load(conn: &Connection) -> Result<State, StoreError> {
     let mut state = State::default();
-    let mut stmt = conn.prepare("SELECT id, created_at, params FROM flights")?;
-    let rows = stmt.query_map([], |r| {
-        Ok((
-            r.get::<_, String>(0)?,
-            r.get::<_, i64>(1)?,
-            r.get::<_, String>(2)?,
-        ))
-    })?;
-    for row in rows {
-        let (id, created_at, params) = row?;
-        let id = parse_id(&id)?;
-        let params: JobParams = serde_json::from_str(&params)
+    let mut stmt = conn.prepare(
+        "SELECT id, created_at, params, export_to, export_state, export_error, export_written_at,
+                export_attempts
+         FROM flights",
+    )?;
+    let mut rows = stmt.query([])?;
+    while let Some(r) = rows.next()? {
+        let id = parse_id(&r.get::<_, String>(0)?)?;
+        let params: JobParams = serde_json::from_str(&r.get::<_, String>(2)?)
             .map_err(|e| StoreError::Corrupt(format!("flight {id} params: {e}")))?;
+        let export = match r.get::<_, Option<String>>(3)? {
+            None => None,
+            Some(to) => {
+                let name: String = r.get::<_, Option<String>>(4)?.unwrap_or_default();
+                Some(Export {
+                    to,
+                    state: ExportState::parse(&name)
+                        .ok_or_else(|| StoreError::Corrupt(format!("export state {name:?}")))?,
+                    error: r.get(5)?,
+                    written_at: r.get(6)?,
+                    attempts: r.get(7)?,
+                })
+            }
+        };
         state.flights.insert(
             id,
             FlightRecord {
                 id,
-                created_at,
+                created_at: r.get(1)?,
                 params,
+                export,
             },
         );
         state.flight_jobs.insert(id, Vec::new());
     }
     let mut stmt = conn.prepare(
         "SELECT seq, id, flight_id, image, ext, bytes, state, created_at, started_at, finished_at,
-                attempts, error_code, error_message, width, height, targets
+                attempts, error_code, error_message, width, height, targets, source, source_etag
          FROM jobs ORDER BY seq",
     )?;
     let mut rows = stmt.query([])?;
@@ -684,6 +910,8 @@ fn load(conn: &Connection) -> Result<State, StoreError> {
             tiles_done: 0,
             tiles_total: 0,
             cancel_requested: false,
+            source: r.get(16)?,
+            source_etag: r.get(17)?,
         });
     }
     add_jobs(&mut state, records);

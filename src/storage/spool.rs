@@ -70,13 +70,21 @@ impl DataDir {
 
     /// Removes a job's frame and result; missing files are fine.
     pub fn remove_job_files(&self, job: Uuid, ext: &str) {
-        for path in [self.frame_path(job, ext), self.result_path(job)] {
-            match std::fs::remove_file(&path) {
-                Ok(()) => {}
-                Err(e) if e.kind() == io::ErrorKind::NotFound => {}
-                Err(e) => tracing::warn!(path = %path.display(), error = %e, "cannot remove"),
-            }
-        }
+        remove_quietly(&self.frame_path(job, ext));
+        remove_quietly(&self.result_path(job));
+    }
+
+    /// Removes a job's frame only; a missing file is fine.
+    pub fn remove_frame(&self, job: Uuid, ext: &str) {
+        remove_quietly(&self.frame_path(job, ext));
+    }
+}
+
+fn remove_quietly(path: &Path) {
+    match std::fs::remove_file(path) {
+        Ok(()) => {}
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+        Err(e) => tracing::warn!(path = %path.display(), error = %e, "cannot remove"),
     }
 }
 

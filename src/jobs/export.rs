@@ -1,0 +1,99 @@
+//! Writing a finished flight's results back to object storage: when every
+//! job of a flight with `results_to` has ended, `results.csv` and
+//! `results.geojson` (the same bytes as the API's) are written under that
+//! prefix. A failed write is retried with backoff, and after
+//! [`MAX_ATTEMPTS`] the export is marked failed with the reason, shown on
+//! the flight. Export state is in the store, so a restart finishes what a
+//! stop interrupted.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::watch;
+use tokio::time::Instant;
+
+use crate::pipeline::output::Format;
+use crate::storage::s3::{S3Url, S3};
+use crate::storage::DataDir;
+
+use super::model::{FlightId, FlightRecord, JobRecord};
+use super::store::Store;
+
+/// Attempts before an export is marked failed.
+pub const MAX_ATTEMPTS: u32 = 5;
+
+/// Runs until `stop` turns true.
+pub async fn run(store: Arc<Store>, data: DataDir, s3: Arc<S3>, mut stop: watch::Receiver<bool>) {
+    let mut changes = store.subscribe();
+    let mut not_before: HashMap<FlightId, Instant> = HashMap::new();
+    loop {
+        let now = Instant::now();
+        for (flight, jobs) in store.exports_due() {
+            if not_before.get(&flight.id).is_some_and(|t| *t > now) {
+                continue;
+            }
+            let result = export(&data, &s3, &flight, jobs).await;
+            let attempts = flight.export.as_ref().map_or(0, |e| e.attempts) + 1;
+            match &result {
+                Ok(()) => {
+                    tracing::info!(flight.id = %flight.id, "results written to object storage");
+                    not_before.remove(&flight.id);
+                }
+                Err(e) => {
+                    tracing::warn!(flight.id = %flight.id, attempts, error = %e, "cannot write results");
+                    let backoff = Duration::from_secs(2u64.pow(attempts.min(6)));
+                    not_before.insert(flight.id, Instant::now() + backoff);
+                }
+            }
+            if let Err(e) = store.export_done(flight.id, result, attempts >= MAX_ATTEMPTS) {
+                tracing::error!(error = %e, "cannot record an export");
+            }
+        }
+        let wake = not_before.values().min().copied();
+        tokio::select! {
+            _ = stop.wait_for(|s| *s) => break,
+            changed = changes.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+            }
+            _ = sleep_until(wake) => {}
+        }
+    }
+}
+
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Renders both formats and writes them under the flight's prefix.
+async fn export(
+    data: &DataDir,
+    s3: &S3,
+    flight: &FlightRecord,
+    jobs: Vec<JobRecord>,
+) -> Result<(), String> {
+    let to = flight.export.as_ref().map(|e| e.to.clone()).unwrap_or_default();
+    let Ok(S3Url::Prefix { bucket, prefix }) = S3Url::parse(&to) else {
+        return Err(format!("{to:?} is not an s3://bucket/prefix/"));
+    };
+    let (data, crs) = (data.clone(), flight.params.crs.clone());
+    let rendered = tokio::task::spawn_blocking(move || {
+        let csv = crate::jobs::results::render_jobs(&data, &jobs, &crs, Format::Csv)?;
+        let geojson = crate::jobs::results::render_jobs(&data, &jobs, &crs, Format::GeoJson)?;
+        Ok::<_, String>((csv, geojson))
+    })
+    .await
+    .map_err(|e| format!("rendering results: {e}"))??;
+    let (csv, geojson) = rendered;
+    for (name, text) in [("results.csv", csv), ("results.geojson", geojson)] {
+        s3.put(&bucket, &format!("{prefix}{name}"), text.into_bytes())
+            .await
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}

@@ -63,7 +63,11 @@ pub struct ServeArgs {
     #[arg(long, env = "GCP_TAGGER_S3_REGION")]
     pub s3_region: Option<String>,
     /// Buckets clients may name in s3:// sources and results_to, comma separated (default: any bucket at the endpoint).
-    #[arg(long = "s3-allow-bucket", env = "GCP_TAGGER_S3_ALLOW_BUCKETS", value_delimiter = ',')]
+    #[arg(
+        long = "s3-allow-bucket",
+        env = "GCP_TAGGER_S3_ALLOW_BUCKETS",
+        value_delimiter = ','
+    )]
     pub s3_allow_buckets: Vec<String>,
     /// Objects downloaded at once.
     #[arg(long, env = "GCP_TAGGER_S3_CONCURRENCY", default_value_t = 4)]

@@ -119,7 +119,11 @@ pub async fn submit_flight(
         let store = state.store.clone();
         let target = Target::NewFlight(params, sourced.results_to);
         let (flight, jobs) = tokio::task::spawn_blocking(move || {
-            upload::check_names(&store, &target, sourced.jobs.iter().map(|j| j.image.as_str()))?;
+            upload::check_names(
+                &store,
+                &target,
+                sourced.jobs.iter().map(|j| j.image.as_str()),
+            )?;
             upload::record(&store, &sourced.jobs, target)
         })
         .await
@@ -213,7 +217,11 @@ pub async fn add_frames(
         let store = state.store.clone();
         let (flight, jobs) = tokio::task::spawn_blocking(move || {
             let target = Target::Flight(id);
-            upload::check_names(&store, &target, sourced.jobs.iter().map(|j| j.image.as_str()))?;
+            upload::check_names(
+                &store,
+                &target,
+                sourced.jobs.iter().map(|j| j.image.as_str()),
+            )?;
             upload::record(&store, &sourced.jobs, target)
         })
         .await

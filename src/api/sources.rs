@@ -86,17 +86,16 @@ pub async fn receive(
                 .with_field("sources"),
         );
     }
-    let results_to = match request.results_to {
-        Some(_) if !allow_results_to => {
-            return Err(ApiError::bad_request(
+    let results_to =
+        match request.results_to {
+            Some(_) if !allow_results_to => return Err(ApiError::bad_request(
                 "invalid_source",
                 "results_to is set when a flight is created; frames added later use the flight's",
             )
-            .with_field("results_to"))
-        }
-        Some(raw) => Some(checked_results_to(state, &raw)?),
-        None => None,
-    };
+            .with_field("results_to")),
+            Some(raw) => Some(checked_results_to(state, &raw)?),
+            None => None,
+        };
     let mut urls = Vec::with_capacity(request.sources.len());
     for (i, raw) in request.sources.iter().enumerate() {
         urls.push(S3Url::parse(raw).map_err(|e| source_error(e, i))?);
@@ -147,7 +146,10 @@ fn new_job(url: &S3Url, object: ObjectRef, max_frame_bytes: u64) -> NewJob {
     let name = match url {
         // Under a prefix, the key below it: unique within the prefix.
         S3Url::Prefix { prefix, .. } => {
-            let rel = object.key.strip_prefix(prefix.as_str()).unwrap_or(&object.key);
+            let rel = object
+                .key
+                .strip_prefix(prefix.as_str())
+                .unwrap_or(&object.key);
             rel.chars().filter(|c| !c.is_control()).collect()
         }
         S3Url::Object { .. } => sanitize_name(&object.key).unwrap_or_else(|| object.key.clone()),

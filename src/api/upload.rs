@@ -389,7 +389,11 @@ pub fn commit(
     mut upload: Upload,
     target: Target,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
-    check_names(store, &target, upload.parts.iter().map(|p| p.image.as_str()))?;
+    check_names(
+        store,
+        &target,
+        upload.parts.iter().map(|p| p.image.as_str()),
+    )?;
     let mut jobs = Vec::with_capacity(upload.parts.len());
     for part in upload.parts.iter_mut() {
         let id = Uuid::now_v7();

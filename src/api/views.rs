@@ -5,7 +5,9 @@
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
-use crate::jobs::model::{Export, FlightState, JobError, JobRecord, JobState, Millis, StateCounts};
+use crate::jobs::model::{
+    Export, ExportState, FlightState, JobError, JobRecord, JobState, Millis, StateCounts,
+};
 use crate::jobs::{FlightRecord, JobParams};
 
 /// Longest a request may wait for a change (`wait=`), in seconds.
@@ -157,7 +159,17 @@ impl FlightView {
             counts.add(j.state);
             done += done_fraction(j);
         }
-        let state = counts.flight_state();
+        let mut state = counts.flight_state();
+        // A flight whose results go to object storage has finished once
+        // they are there (or the export gave up), so a client that waits
+        // for the flight can read them at once.
+        if state == FlightState::Finished
+            && f.export
+                .as_ref()
+                .is_some_and(|e| e.state == ExportState::Pending)
+        {
+            state = FlightState::Running;
+        }
         let finished_at = (state == FlightState::Finished)
             .then(|| jobs.iter().filter_map(|j| j.finished_at).max())
             .flatten()

@@ -77,7 +77,11 @@ async fn export(
     flight: &FlightRecord,
     jobs: Vec<JobRecord>,
 ) -> Result<(), String> {
-    let to = flight.export.as_ref().map(|e| e.to.clone()).unwrap_or_default();
+    let to = flight
+        .export
+        .as_ref()
+        .map(|e| e.to.clone())
+        .unwrap_or_default();
     let Ok(S3Url::Prefix { bucket, prefix }) = S3Url::parse(&to) else {
         return Err(format!("{to:?} is not an s3://bucket/prefix/"));
     };

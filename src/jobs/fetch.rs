@@ -164,7 +164,12 @@ impl FetchTask {
         };
         let (bucket, key) = match S3Url::parse(source) {
             Ok(S3Url::Object { bucket, key }) => (bucket, key),
-            _ => return Err(error("invalid_source", format!("{source:?} names no object"))),
+            _ => {
+                return Err(error(
+                    "invalid_source",
+                    format!("{source:?} names no object"),
+                ))
+            }
         };
         let object = ObjectRef {
             bucket,

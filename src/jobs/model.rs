@@ -155,9 +155,13 @@ impl ExportState {
     }
 
     pub fn parse(s: &str) -> Option<ExportState> {
-        [ExportState::Pending, ExportState::Written, ExportState::Failed]
-            .into_iter()
-            .find(|st| st.as_str() == s)
+        [
+            ExportState::Pending,
+            ExportState::Written,
+            ExportState::Failed,
+        ]
+        .into_iter()
+        .find(|st| st.as_str() == s)
     }
 }
 
@@ -167,9 +171,11 @@ impl ExportState {
 pub enum FlightState {
     /// No job has started yet.
     Queued,
-    /// Some jobs are queued or running.
+    /// Some jobs are fetching, queued or running, or every job ended and
+    /// the results are being written to object storage.
     Running,
-    /// Every job ended (succeeded, failed or canceled).
+    /// Every job ended (succeeded, failed or canceled) and, when asked
+    /// for, the results were written to object storage (or that failed).
     Finished,
 }
 

@@ -284,7 +284,11 @@ impl Store {
         )?;
         tx.commit()?;
         let mut state = self.state();
-        if let Some(export) = state.flights.get_mut(&flight).and_then(|f| f.export.as_mut()) {
+        if let Some(export) = state
+            .flights
+            .get_mut(&flight)
+            .and_then(|f| f.export.as_mut())
+        {
             export.state = ExportState::Pending;
             export.attempts = 0;
             export.error = None;
@@ -518,7 +522,11 @@ impl Store {
     ) -> Result<(), StoreError> {
         let db = self.db();
         let mut state = self.state();
-        let Some(export) = state.flights.get_mut(&flight).and_then(|f| f.export.as_mut()) else {
+        let Some(export) = state
+            .flights
+            .get_mut(&flight)
+            .and_then(|f| f.export.as_mut())
+        else {
             return Ok(());
         };
         export.attempts += 1;

@@ -94,9 +94,15 @@ impl S3Error {
 /// A parsed `s3://` source.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum S3Url {
-    Object { bucket: String, key: String },
+    Object {
+        bucket: String,
+        key: String,
+    },
     /// Every object under `prefix` (empty: the whole bucket; else ends in `/`).
-    Prefix { bucket: String, prefix: String },
+    Prefix {
+        bucket: String,
+        prefix: String,
+    },
 }
 
 impl S3Url {
@@ -233,21 +239,21 @@ impl S3 {
             return Ok(c.clone());
         }
         let mut builder = AmazonS3Builder::from_env().with_bucket_name(bucket);
-        if let Some(endpoint) = &self.config.endpoint {
-            builder = builder
-                .with_endpoint(endpoint)
-                .with_allow_http(endpoint.starts_with("http://"));
-        } else if std::env::var("AWS_ENDPOINT_URL")
-            .or_else(|_| std::env::var("AWS_ENDPOINT"))
-            .is_ok_and(|e| e.starts_with("http://"))
-        {
-            builder = builder.with_allow_http(true);
+        let endpoint = self.config.endpoint.clone().or_else(|| {
+            std::env::var("AWS_ENDPOINT_URL")
+                .or_else(|_| std::env::var("AWS_ENDPOINT"))
+                .ok()
+        });
+        if let Some(endpoint) = &endpoint {
+            builder = builder.with_endpoint(endpoint);
         }
         if let Some(region) = &self.config.region {
             builder = builder.with_region(region);
         }
         let timeout = Duration::from_secs(self.config.request_timeout_secs.max(1));
+        // These options replace the builder's client options as a whole.
         let options = ClientOptions::new()
+            .with_allow_http(endpoint.is_some_and(|e| e.starts_with("http://")))
             .with_connect_timeout(Duration::from_secs(10))
             // A stalled transfer fails fast and is retried from where it
             // stopped; a slow but moving one has the whole timeout.
@@ -405,7 +411,9 @@ impl S3 {
                 if actual != expected {
                     return Err(S3Error::Integrity(
                         url,
-                        format!("MD5 {actual} of the received bytes differs from the ETag {expected}"),
+                        format!(
+                            "MD5 {actual} of the received bytes differs from the ETag {expected}"
+                        ),
                     ));
                 }
             }
@@ -415,12 +423,7 @@ impl S3 {
 
     /// Writes `bytes` to `s3://bucket/key` (one PUT: the object appears
     /// whole or not at all).
-    pub async fn put(
-        &self,
-        bucket: &str,
-        key: &str,
-        bytes: Vec<u8>,
-    ) -> Result<(), S3Error> {
+    pub async fn put(&self, bucket: &str, key: &str, bytes: Vec<u8>) -> Result<(), S3Error> {
         let url = format!("s3://{bucket}/{key}");
         let client = self.client(bucket)?;
         let path = Path::parse(key).map_err(|e| S3Error::BadUrl(e.to_string()))?;
@@ -441,25 +444,49 @@ fn plain_md5_etag(etag: &str) -> Option<String> {
 }
 
 /// Maps an `object_store` error on `url` to what a client can act on.
+/// Listing errors come back generic, so the S3 error code in the text
+/// (`<Code>NoSuchBucket</Code>`, HTTP 403) decides too.
 fn classify(bucket: &str, url: &str, e: object_store::Error) -> S3Error {
     let text = e.to_string();
+    let reason = s3_reason(&text);
+    let has = |needle: &str| text.contains(needle);
+    if has("NoSuchBucket") {
+        return S3Error::NoSuchBucket(bucket.to_string());
+    }
     match e {
-        object_store::Error::NotFound { .. } if text.contains("NoSuchBucket") => {
-            S3Error::NoSuchBucket(bucket.to_string())
-        }
         object_store::Error::NotFound { .. } => S3Error::NotFound(url.to_string()),
         object_store::Error::PermissionDenied { .. }
         | object_store::Error::Unauthenticated { .. } => {
-            S3Error::AccessDenied(url.to_string(), first_line(&text))
+            S3Error::AccessDenied(url.to_string(), reason)
         }
         object_store::Error::Precondition { .. } => S3Error::Changed(url.to_string()),
-        _ => S3Error::Unavailable(url.to_string(), first_line(&text)),
+        _ if has("403 Forbidden")
+            || has("AccessDenied")
+            || has("SignatureDoesNotMatch")
+            || has("InvalidAccessKeyId") =>
+        {
+            S3Error::AccessDenied(url.to_string(), reason)
+        }
+        _ if has("404 Not Found") => S3Error::NotFound(url.to_string()),
+        _ => S3Error::Unavailable(url.to_string(), reason),
     }
 }
 
-fn first_line(text: &str) -> String {
-    let line = text.lines().next().unwrap_or("");
-    line.chars().take(300).collect()
+/// A short reason from an error's text: the S3 error code and message
+/// when the body carries them, else the first line.
+fn s3_reason(text: &str) -> String {
+    let tag = |name: &str| {
+        let open = format!("<{name}>");
+        let start = text.find(&open)? + open.len();
+        let len = text[start..].find(&format!("</{name}>"))?;
+        Some(text[start..start + len].trim().to_string())
+    };
+    let reason = match (tag("Code"), tag("Message")) {
+        (Some(code), Some(message)) => format!("{code}: {message}"),
+        (Some(code), None) => code,
+        _ => text.lines().next().unwrap_or("").to_string(),
+    };
+    reason.chars().take(300).collect()
 }
 
 #[cfg(test)]
@@ -510,6 +537,21 @@ mod tests {
             plain_md5_etag("\"9E107D9D372BB6826BD81D3542A419D6\"").as_deref(),
             Some("9e107d9d372bb6826bd81d3542a419d6")
         );
-        assert_eq!(plain_md5_etag("\"9e107d9d372bb6826bd81d3542a419d6-3\""), None);
+        assert_eq!(
+            plain_md5_etag("\"9e107d9d372bb6826bd81d3542a419d6-3\""),
+            None
+        );
+    }
+
+    #[test]
+    fn reasons_come_from_the_s3_error_body() {
+        let text = "Generic S3 error: Error performing list request: 403 Forbidden: \
+            <?xml version=\"1.0\"?><Error><Code>SignatureDoesNotMatch</Code>\
+            <Message>The request signature we calculated does not match</Message></Error>";
+        assert_eq!(
+            s3_reason(text),
+            "SignatureDoesNotMatch: The request signature we calculated does not match"
+        );
+        assert_eq!(s3_reason("timed out\nmore"), "timed out");
     }
 }

@@ -3,6 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
+bash scripts/test-deps.sh
 . scripts/env.sh
 if cargo fmt --version >/dev/null 2>&1; then
   cargo fmt --all -- --check

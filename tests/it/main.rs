@@ -7,5 +7,6 @@ mod accuracy;
 mod cli;
 mod georef;
 mod printed;
+mod s3;
 mod service;
 mod tiling;

@@ -23,11 +23,17 @@ pub struct Server {
 impl Server {
     /// Starts a server on `data` with extra `serve` flags.
     pub fn start(data: &Path, extra: &[&str]) -> Server {
+        Server::start_env(data, extra, &[])
+    }
+
+    /// Starts a server with extra flags and environment variables.
+    pub fn start_env(data: &Path, extra: &[&str], env: &[(&str, &str)]) -> Server {
         let log = data.with_extension("log");
         let mut child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
             .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(data)
             .args(extra)
+            .envs(env.iter().copied())
             .env("GCP_TAGGER_LOG", "info")
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(&log).unwrap())

@@ -12,10 +12,10 @@ use serde_json::Value;
 
 use crate::server::{problem, Server};
 
-const CRS: &str = "EPSG:32611";
+pub(crate) const CRS: &str = "EPSG:32611";
 
 /// Three georeferenced frames with known targets, rendered once.
-fn flight() -> &'static (tempfile::TempDir, Vec<PathBuf>) {
+pub(crate) fn flight() -> &'static (tempfile::TempDir, Vec<PathBuf>) {
     static FLIGHT: OnceLock<(tempfile::TempDir, Vec<PathBuf>)> = OnceLock::new();
     FLIGHT.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
@@ -75,7 +75,7 @@ fn assert_csv_matches_truth(csv: &str, images: &[&str]) {
 }
 
 /// What `gcp-tagger detect` writes for `frames` in `ext` format.
-fn cli_output(frames: &[&Path], ext: &str) -> String {
+pub(crate) fn cli_output(frames: &[&Path], ext: &str) -> String {
     let out = tempfile::tempdir().unwrap();
     let path = out.path().join(format!("r.{ext}"));
     let status = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))

@@ -930,3 +930,106 @@ fn parse_id(s: &str) -> Result<uuid::Uuid, StoreError> {
     s.parse()
         .map_err(|_| StoreError::Corrupt(format!("id {s:?}")))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sourced(image: &str) -> NewJob {
+        NewJob {
+            id: uuid::Uuid::now_v7(),
+            image: image.into(),
+            ext: "none".into(),
+            bytes: 10,
+            rejected: None,
+            source: Some((format!("s3://b/{image}"), Some("\"etag\"".into()))),
+        }
+    }
+
+    #[test]
+    fn fetching_jobs_survive_a_restart_and_join_the_queue_once_fetched() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("jobs.sqlite");
+        let (a, b) = (sourced("a.tif"), sourced("b.tif"));
+        let store = Store::open(&path).unwrap();
+        let flight = store
+            .create_flight(
+                &JobParams::default(),
+                &[a.clone(), b.clone()],
+                Some("s3://b/out/".into()),
+            )
+            .unwrap();
+        assert_eq!(store.stats().fetching, 2);
+        assert_eq!(store.stats().queued, 0);
+        drop(store);
+
+        let store = Store::open(&path).unwrap();
+        let waiting: Vec<JobId> = store.to_fetch(10).iter().map(|j| j.id).collect();
+        assert_eq!(waiting, [a.id, b.id]);
+        let job = store.job(a.id).unwrap();
+        assert_eq!(job.source.as_deref(), Some("s3://b/a.tif"));
+        assert_eq!(job.source_etag.as_deref(), Some("\"etag\""));
+        assert!(store.fetched(a.id, "tif", 12).unwrap());
+        let error = JobError {
+            code: "no_such_object".into(),
+            message: "gone".into(),
+        };
+        store.fetch_failed(b.id, &error).unwrap();
+        // A second answer for the same fetch changes nothing.
+        assert!(!store.fetched(a.id, "tif", 12).unwrap());
+        let stats = store.stats();
+        assert_eq!((stats.fetching, stats.queued, stats.fetched), (0, 1, 1));
+        let stop = AtomicBool::new(false);
+        let claim = store
+            .claim_next(&stop, Duration::from_millis(10))
+            .unwrap()
+            .unwrap();
+        assert_eq!((claim.job.id, claim.job.ext.as_str()), (a.id, "tif"));
+        assert!(store.exports_due().is_empty(), "a job still runs");
+        let done = Outcome::Succeeded {
+            width: 1,
+            height: 1,
+            targets: 0,
+        };
+        store.finish(a.id, &done).unwrap();
+        let due = store.exports_due();
+        assert_eq!(due.len(), 1);
+        assert_eq!(due[0].0.id, flight.id);
+        store.export_done(flight.id, Ok(()), false).unwrap();
+        drop(store);
+
+        let store = Store::open(&path).unwrap();
+        let export = store.flight(flight.id).unwrap().export.unwrap();
+        assert_eq!((export.state, export.attempts), (ExportState::Written, 1));
+        assert_eq!(store.job(b.id).unwrap().error, Some(error));
+    }
+
+    #[test]
+    fn a_data_folder_from_before_s3_sources_opens_with_its_jobs() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("jobs.sqlite");
+        let conn = Connection::open(&path).unwrap();
+        conn.execute_batch(SCHEMA).unwrap();
+        conn.execute(
+            "INSERT INTO flights (id, created_at, params) VALUES (?1, 1, ?2)",
+            params![
+                uuid::Uuid::nil().to_string(),
+                serde_json::to_string(&JobParams::default()).unwrap()
+            ],
+        )
+        .unwrap();
+        conn.execute(
+            "INSERT INTO jobs (id, flight_id, image, ext, bytes, state, created_at)
+             VALUES (?1, ?2, 'a.tif', 'tif', 5, 'queued', 1)",
+            params![
+                uuid::Uuid::now_v7().to_string(),
+                uuid::Uuid::nil().to_string()
+            ],
+        )
+        .unwrap();
+        drop(conn);
+        let store = Store::open(&path).unwrap();
+        assert_eq!(store.stats().queued, 1);
+        assert_eq!(store.flight(uuid::Uuid::nil()).unwrap().export, None);
+    }
+}

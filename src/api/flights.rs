@@ -116,18 +116,8 @@ pub async fn submit_flight(
             .with_field("results_to"));
         }
         let sourced = sources::receive(&state, req, true).await?;
-        let store = state.store.clone();
         let target = Target::NewFlight(params, sourced.results_to);
-        let (flight, jobs) = tokio::task::spawn_blocking(move || {
-            upload::check_names(
-                &store,
-                &target,
-                sourced.jobs.iter().map(|j| j.image.as_str()),
-            )?;
-            upload::record(&store, &sourced.jobs, target)
-        })
-        .await
-        .map_err(|e| ApiError::internal("recording the flight", e))??;
+        let (flight, jobs) = sources::commit(&state, sourced.jobs, target).await?;
         (flight, jobs, sourced.skipped)
     } else {
         let results_to = match extras.results_to {
@@ -214,18 +204,7 @@ pub async fn add_frames(
             .with_field("name"));
         }
         let sourced = sources::receive(&state, req, false).await?;
-        let store = state.store.clone();
-        let (flight, jobs) = tokio::task::spawn_blocking(move || {
-            let target = Target::Flight(id);
-            upload::check_names(
-                &store,
-                &target,
-                sourced.jobs.iter().map(|j| j.image.as_str()),
-            )?;
-            upload::record(&store, &sourced.jobs, target)
-        })
-        .await
-        .map_err(|e| ApiError::internal("recording the frames", e))??;
+        let (flight, jobs) = sources::commit(&state, sourced.jobs, Target::Flight(id)).await?;
         return Ok(submitted(&state, flight, jobs, sourced.skipped));
     }
     let is_multipart = req

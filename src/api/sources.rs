@@ -12,9 +12,10 @@ use futures_util::StreamExt;
 use serde::Deserialize;
 
 use super::error::ApiError;
+use super::upload::{self, Target};
 use super::AppState;
 use crate::jobs::model::JobError;
-use crate::jobs::NewJob;
+use crate::jobs::{FlightRecord, JobRecord, NewJob};
 use crate::storage::s3::{ObjectRef, S3Error, S3Url};
 use crate::storage::spool::sanitize_name;
 
@@ -139,6 +140,21 @@ pub async fn receive(
         skipped,
         results_to,
     })
+}
+
+/// Records the jobs of a source request (names unique in the flight).
+pub async fn commit(
+    state: &AppState,
+    jobs: Vec<NewJob>,
+    target: Target,
+) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
+    let store = state.store.clone();
+    tokio::task::spawn_blocking(move || {
+        upload::check_names(&store, &target, jobs.iter().map(|j| j.image.as_str()))?;
+        upload::record(&store, &jobs, target)
+    })
+    .await
+    .map_err(|e| ApiError::internal("recording the jobs", e))?
 }
 
 /// A job for one object; one too large for a frame is created failed.

@@ -508,18 +508,19 @@ fn relay(
     });
 }
 
-#[test]
-fn an_interrupted_transfer_resumes_where_it_stopped() {
+/// Puts two frames under `flights/f/`, puts `fault` on the path to
+/// `faulty` and submits the prefix through the proxy; returns what runs
+/// (declared in reverse drop order: the server stops first) and the
+/// finished flight's id.
+fn flight_through_proxy(
+    faulty: &str,
+    fault: Fault,
+    times: usize,
+) -> (Moto, Proxy, tempfile::TempDir, Server, String) {
     let frames = &flight().1;
     let moto = Moto::start(false);
     moto.ops(KEY, SECRET, put_frames("flights", "f/", &frames[..2]));
-    // Two cuts in the middle of frame_0001's body.
-    let proxy = Proxy::start(
-        moto.port,
-        "/flights/f/frame_0001.tif",
-        Fault::Cut(700_000),
-        2,
-    );
+    let proxy = Proxy::start(moto.port, &format!("/flights/f/{faulty}"), fault, times);
     let data = tempfile::tempdir().unwrap();
     let server = Server::start_env(
         &data.path().join("d"),
@@ -533,10 +534,19 @@ fn an_interrupted_transfer_resumes_where_it_stopped() {
     );
     assert_eq!(r.status(), 201);
     let v: Value = r.json().unwrap();
-    let id = v["flight"]["id"].as_str().unwrap();
-    let done = server.wait_flight(id);
+    let id = v["flight"]["id"].as_str().unwrap().to_string();
+    server.wait_flight(&id);
+    (moto, proxy, data, server, id)
+}
+
+#[test]
+fn an_interrupted_transfer_resumes_where_it_stopped() {
+    // Two cuts in the middle of frame_0001's body.
+    let (_moto, proxy, _data, server, id) =
+        flight_through_proxy("frame_0001.tif", Fault::Cut(700_000), 2);
+    let done = server.get_json(&format!("/v1/flights/{id}"));
     assert_eq!(done["jobs"]["succeeded"], 2, "{done}");
-    let paths: Vec<&Path> = frames[..2].iter().map(|p| p.as_path()).collect();
+    let paths: Vec<&Path> = flight().1[..2].iter().map(|p| p.as_path()).collect();
     assert_eq!(
         server.get_text(&format!("/v1/flights/{id}/results.csv")),
         cli_output(&paths, "csv")
@@ -550,30 +560,8 @@ fn an_interrupted_transfer_resumes_where_it_stopped() {
 
 #[test]
 fn a_corrupted_transfer_fails_its_job_and_the_others_go_on() {
-    let frames = &flight().1;
-    let moto = Moto::start(false);
-    moto.ops(KEY, SECRET, put_frames("flights", "f/", &frames[..2]));
-    let proxy = Proxy::start(
-        moto.port,
-        "/flights/f/frame_0000.tif",
-        Fault::Corrupt(50_000),
-        1,
-    );
-    let data = tempfile::tempdir().unwrap();
-    let server = Server::start_env(
-        &data.path().join("d"),
-        &["--s3-endpoint", &proxy.addr],
-        &aws_env(KEY, SECRET),
-    );
-    let r = post_json(
-        &server,
-        &format!("/v1/flights?crs={CRS}"),
-        json!({"sources": ["s3://flights/f/"]}),
-    );
-    assert_eq!(r.status(), 201);
-    let v: Value = r.json().unwrap();
-    let id = v["flight"]["id"].as_str().unwrap();
-    server.wait_flight(id);
+    let (_moto, _proxy, _data, server, id) =
+        flight_through_proxy("frame_0000.tif", Fault::Corrupt(50_000), 1);
     let jobs = server.get_json(&format!("/v1/flights/{id}/jobs"));
     let jobs = jobs["items"].as_array().unwrap();
     assert_eq!(jobs[0]["state"], "failed", "{}", jobs[0]);

@@ -3,7 +3,8 @@
 //!
 //! - [`pipeline`]: the synchronous detection pipeline (GDAL, OpenCV, PROJ).
 //! - [`jobs`]: job records, the durable store and queue, the worker pool.
-//! - [`storage`]: the data folder and the upload spool.
+//! - [`storage`]: the data folder, the upload spool and S3 sources.
+//! - [`survey`]: surveyed points, matching detections to them, exports.
 //! - [`api`]: the HTTP API (axum), its errors and OpenAPI document.
 //! - [`server`] and [`config`]: `gcp-tagger serve`.
 //! - [`cli`]: the `gcp-tagger` command line.
@@ -17,5 +18,6 @@ pub mod jobs;
 pub mod pipeline;
 pub mod server;
 pub mod storage;
+pub mod survey;
 pub mod synth;
 pub mod telemetry;

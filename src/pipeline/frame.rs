@@ -3,8 +3,9 @@
 
 use opencv::core::{Mat, CV_8UC1};
 
+use super::camera::CameraMeta;
 use super::detect::{build_detectors, DetectError, Detection, DetectorConfig, SizeRange};
-use super::georef::{TargetCrs, Transformer, WGS84};
+use super::georef::{Georeference, TargetCrs, Transformer, WGS84};
 use super::raster::{RasterError, RasterFrame};
 use super::tiles::TileGrid;
 use super::{dedup, memory};
@@ -135,6 +136,13 @@ pub struct FrameResult {
     /// Conditions worth telling the user that did not stop the frame.
     pub warnings: Vec<String>,
     pub tiles: usize,
+    /// The frame's georeference, for projecting surveyed points into it.
+    #[serde(default)]
+    pub georeference: Option<Georeference>,
+    /// Camera metadata of a raw frame (EXIF/XMP), for predicting where
+    /// surveyed points appear.
+    #[serde(default)]
+    pub camera: Option<CameraMeta>,
 }
 
 /// Why a frame produced no result.
@@ -233,6 +241,8 @@ pub fn detect_frame(
         targets,
         warnings,
         tiles: grid.count(),
+        georeference: header.georeference.clone(),
+        camera: header.camera.clone(),
     })
 }
 

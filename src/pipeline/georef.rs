@@ -104,7 +104,7 @@ impl TargetCrs {
 }
 
 /// A raster's georeference: affine geotransform plus the CRS it maps into.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Georeference {
     /// GDAL order: x0, dx/dcol, dx/drow, y0, dy/dcol, dy/drow.
     pub geotransform: [f64; 6],
@@ -149,6 +149,21 @@ impl Georeference {
             crs,
             ground_m_per_px,
         })
+    }
+
+    /// OpenCV pixel coordinates of a point given in the raster's CRS (the
+    /// inverse of [`Georeference::pixel_to_raster_crs`]); `None` for a
+    /// degenerate geotransform.
+    pub fn raster_crs_to_pixel(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        let g = &self.geotransform;
+        let det = g[1] * g[5] - g[2] * g[4];
+        if det.abs() < 1e-300 {
+            return None;
+        }
+        let (dx, dy) = (x - g[0], y - g[3]);
+        let col = (g[5] * dx - g[2] * dy) / det;
+        let row = (-g[4] * dx + g[1] * dy) / det;
+        Some((col - 0.5, row - 0.5))
     }
 
     /// World coordinates, in the raster's CRS, of a point in OpenCV pixel

@@ -5,6 +5,7 @@
 //! output, with memory deciding how many frames run at once (batch).
 
 pub mod batch;
+pub mod camera;
 pub mod dedup;
 pub mod detect;
 pub mod frame;

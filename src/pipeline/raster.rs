@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use gdal::raster::{ColorInterpretation, GdalDataType};
 use gdal::{Dataset, DatasetOptions, GdalOpenFlags};
 
+use super::camera::CameraMeta;
 use super::georef::Georeference;
 
 /// GDAL drivers a frame may be opened with. Everything else (VRT, /vsi
@@ -83,6 +84,8 @@ pub struct FrameHeader {
     pub georeference: Option<Georeference>,
     /// Why the frame has no georeference, when it has none.
     pub georeference_note: Option<String>,
+    /// Camera position and orientation from EXIF/XMP (raw drone frames).
+    pub camera: Option<CameraMeta>,
 }
 
 impl FrameHeader {
@@ -164,6 +167,7 @@ pub fn open_frame(path: &Path) -> Result<RasterFrame, RasterError> {
         driver: dataset.driver().short_name(),
         georeference,
         georeference_note,
+        camera: CameraMeta::from_dataset(&dataset),
     };
     Ok(RasterFrame {
         dataset,

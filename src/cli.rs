@@ -13,10 +13,14 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::pipeline::batch::{run_batch, BatchOptions, FrameInput, FrameOutcome};
 use crate::pipeline::detect::{AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType};
-use crate::pipeline::frame::{FrameOptions, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE};
-use crate::pipeline::georef::TargetCrs;
+use crate::pipeline::frame::{FrameOptions, FrameResult, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE};
+use crate::pipeline::georef::{TargetCrs, Transformer};
 use crate::pipeline::memory::default_max_ram_bytes;
 use crate::pipeline::output::{render, Format};
+use crate::survey::export;
+use crate::survey::matching::{match_frames, point_reports, DEFAULT_PIXEL_TOLERANCE};
+use crate::survey::parse::parse_survey;
+use crate::survey::Survey;
 use crate::synth;
 
 /// Exit codes of `detect`, documented in the README.
@@ -150,8 +154,20 @@ pub struct DetectArgs {
     #[arg(long, env = "GCP_TAGGER_MAX_RAM_GB")]
     pub max_ram_gb: Option<f64>,
     /// Largest corner move, in pixels, accepted from subpixel refinement; a larger move is rejected and flagged (default: 0.6 of a marker cell, at least 1.5 px).
-    #[arg(long, env = "GCP_TAGGER_PIXEL_TOLERANCE")]
-    pub pixel_tolerance: Option<f64>,
+    #[arg(long, env = "GCP_TAGGER_MAX_REFINE_SHIFT_PX")]
+    pub max_refine_shift_px: Option<f64>,
+    /// Survey file of ground control points (CSV with a header, or `name easting northing elevation [role]` lines); with --exports.
+    #[arg(long, env = "GCP_TAGGER_SURVEY", requires = "exports")]
+    pub survey: Option<PathBuf>,
+    /// CRS of the survey's coordinates, when its first line does not name one.
+    #[arg(long, env = "GCP_TAGGER_SURVEY_CRS", requires = "survey")]
+    pub survey_crs: Option<String>,
+    /// Survey matching: farthest a detection may lie from its point's expected position, in pixels (raw frames add the prediction's uncertainty).
+    #[arg(long, env = "GCP_TAGGER_PIXEL_TOLERANCE", default_value_t = DEFAULT_PIXEL_TOLERANCE)]
+    pub pixel_tolerance: f64,
+    /// Folder for gcp_list.txt, pix4d_marks.csv, metashape_markers.xml, survey_points.geojson, observations.csv and report.json.
+    #[arg(long, env = "GCP_TAGGER_EXPORTS", requires = "survey")]
+    pub exports: Option<PathBuf>,
     /// Frames processed at once (default: number of cores).
     #[arg(long, env = "GCP_TAGGER_THREADS")]
     pub threads: Option<usize>,
@@ -229,6 +245,23 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
         Some(gb) => return Err(usage(format!("--max-ram-gb must be positive, got {gb}"))),
         None => default_max_ram_bytes(),
     };
+    if !(args.pixel_tolerance.is_finite() && args.pixel_tolerance > 0.0) {
+        return Err(usage(format!(
+            "--pixel-tolerance must be a positive number of pixels, got {}",
+            args.pixel_tolerance
+        )));
+    }
+    let survey = match &args.survey {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| usage(format!("cannot read survey {}: {e}", path.display())))?;
+            Some(
+                parse_survey(&text, args.survey_crs.as_deref())
+                    .map_err(|e| usage(format!("{}: {e}", path.display())))?,
+            )
+        }
+        None => None,
+    };
     let inputs = collect_inputs(&args.inputs).map_err(usage)?;
     if inputs.is_empty() {
         eprintln!("error: no image files (.jpg, .tif, .png) found in the inputs");
@@ -244,7 +277,7 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
             aruco_dictionary: args.dictionary,
             apriltag_family: args.apriltag_family,
             min_target_px: args.min_target_px,
-            max_refine_shift_px: args.pixel_tolerance,
+            max_refine_shift_px: args.max_refine_shift_px,
             target_size_m: args.target_size_m,
             gsd_cm: args.gsd_cm,
         },
@@ -292,6 +325,9 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
     }
     let text = render(format, &frames, &crs);
     write_output(&args.output, text.as_bytes()).map_err(|e| (exit::INTERNAL, e))?;
+    if let (Some(survey), Some(dir)) = (&survey, &args.exports) {
+        write_exports(survey, &frames, args.pixel_tolerance, dir, args.quiet)?;
+    }
     let targets: usize = frames.iter().map(|f| f.targets.len()).sum();
     if !args.quiet {
         eprintln!(
@@ -307,6 +343,45 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
     } else {
         exit::ALL_GOOD
     })
+}
+
+/// Matches the frames' targets to the survey and writes every export file
+/// into `dir`, printing the points' warnings.
+fn write_exports(
+    survey: &Survey,
+    frames: &[FrameResult],
+    tolerance: f64,
+    dir: &Path,
+    quiet: bool,
+) -> Result<(), (u8, String)> {
+    let mut transformer = Transformer::default();
+    let matched = match_frames(frames, survey, tolerance, &mut transformer);
+    let files = export::all(survey, &matched, tolerance, &mut transformer)
+        .map_err(|e| (exit::INTERNAL, e))?;
+    std::fs::create_dir_all(dir).map_err(|e| {
+        (
+            exit::INTERNAL,
+            format!("cannot create {}: {e}", dir.display()),
+        )
+    })?;
+    for (name, text) in files {
+        write_output(&dir.join(name), text.as_bytes()).map_err(|e| (exit::INTERNAL, e))?;
+    }
+    if !quiet {
+        for report in point_reports(survey, &matched) {
+            for w in &report.warnings {
+                eprintln!("warning: point {}: {w}", report.name);
+            }
+        }
+        eprintln!(
+            "{} observations of {} survey points, {} detections not used -> {}",
+            matched.observations.len(),
+            survey.points.len(),
+            matched.unmatched.len(),
+            dir.display()
+        );
+    }
+    Ok(())
 }
 
 /// An invalid setting as the command line spells it (`--tile-size`).

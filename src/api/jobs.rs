@@ -30,8 +30,10 @@ pub struct UploadQuery {
     apriltag_family: Option<String>,
     /// CRS of world coordinates: `EPSG:n`, WKT, PROJJSON or PROJ string (default `EPSG:4326`).
     crs: Option<String>,
-    /// Largest subpixel corner move accepted, in pixels.
+    /// Survey matching: farthest a detection may lie from its point's expected position, in pixels (default 20).
     pixel_tolerance: Option<f64>,
+    /// Largest subpixel corner move accepted, in pixels (default: 0.6 of a marker cell, at least 1.5 px).
+    max_refine_shift_px: Option<f64>,
     /// Tile side in pixels, 256..=8192 (default 2048).
     tile_size: Option<usize>,
     /// Largest target side in pixels (default 200).

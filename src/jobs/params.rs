@@ -27,9 +27,14 @@ pub struct JobParams {
     /// CRS of the world coordinates: `EPSG:n`, WKT, PROJJSON or a PROJ string.
     #[schema(example = "EPSG:32611")]
     pub crs: String,
+    /// Survey matching: farthest a detection may lie from its point's
+    /// expected position, in pixels (default 20; raw frames add the
+    /// prediction's uncertainty).
+    pub pixel_tolerance: Option<f64>,
     /// Largest corner move accepted from subpixel refinement, in pixels
     /// (default: 0.6 of a marker cell, at least 1.5 px).
-    pub pixel_tolerance: Option<f64>,
+    #[serde(default)]
+    pub max_refine_shift_px: Option<f64>,
     /// Tile side in pixels.
     pub tile_size: usize,
     /// Largest target side in pixels.
@@ -51,6 +56,7 @@ impl Default for JobParams {
             apriltag_family: AprilTagFamily::default().to_string(),
             crs: "EPSG:4326".into(),
             pixel_tolerance: None,
+            max_refine_shift_px: None,
             tile_size: DEFAULT_TILE_SIZE,
             max_target_px: DEFAULT_MAX_TARGET_PX,
             min_target_px: 16.0,
@@ -67,6 +73,7 @@ pub const PARAM_KEYS: &[&str] = &[
     "apriltag_family",
     "crs",
     "pixel_tolerance",
+    "max_refine_shift_px",
     "tile_size",
     "max_target_px",
     "min_target_px",
@@ -99,6 +106,9 @@ impl JobParams {
                 "crs" => p.crs = value.to_string(),
                 "pixel_tolerance" => {
                     p.pixel_tolerance = Some(value.parse().map_err(|_| number("a number"))?)
+                }
+                "max_refine_shift_px" => {
+                    p.max_refine_shift_px = Some(value.parse().map_err(|_| number("a number"))?)
                 }
                 "tile_size" => p.tile_size = value.parse().map_err(|_| number("an integer"))?,
                 "max_target_px" => {
@@ -142,13 +152,21 @@ impl JobParams {
             .parse()
             .map_err(|e| invalid("apriltag_family", e))?;
         let crs = TargetCrs::parse(&self.crs).map_err(|e| invalid("crs", e.to_string()))?;
+        if let Some(t) = self.pixel_tolerance {
+            if !(t.is_finite() && t > 0.0 && t <= 10_000.0) {
+                return Err(invalid(
+                    "pixel_tolerance",
+                    format!("{t} must be a positive number of pixels, at most 10000"),
+                ));
+            }
+        }
         let options = FrameOptions::new(
             DetectorConfig {
                 modes: modes.clone(),
                 aruco_dictionary: dictionary,
                 apriltag_family: family,
                 min_target_px: self.min_target_px,
-                max_refine_shift_px: self.pixel_tolerance,
+                max_refine_shift_px: self.max_refine_shift_px,
                 target_size_m: self.target_size_m,
                 gsd_cm: self.gsd_cm,
             },

@@ -92,7 +92,7 @@ impl FrameOptions {
         if let Some(t) = detector.max_refine_shift_px {
             if !(t.is_finite() && t > 0.0 && t <= max_target_px as f64) {
                 return bad(
-                    "pixel_tolerance",
+                    "max_refine_shift_px",
                     format!("{t} must be a positive number of pixels, at most max_target_px"),
                 );
             }

@@ -23,6 +23,12 @@ use crate::pipeline::georef::Transformer;
 use super::project::{expected_positions, Basis, Expected};
 use super::{Role, Survey};
 
+/// Default `pixel_tolerance`: a target's centre on a georeferenced frame
+/// lands within a few pixels of its surveyed position; 20 px leaves room
+/// for survey and orthorectification error without reaching the next
+/// target.
+pub const DEFAULT_PIXEL_TOLERANCE: f64 = 20.0;
+
 /// A detection tied to a point.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Observation {

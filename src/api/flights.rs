@@ -506,6 +506,9 @@ pub async fn delete_flight(
         for job in jobs.iter().flatten() {
             data.remove_job_files(job.id, &job.ext);
         }
+        if jobs.is_some() {
+            let _ = std::fs::remove_file(data.survey_path(id));
+        }
         Ok::<_, ApiError>(jobs)
     })
     .await

@@ -11,6 +11,7 @@ pub mod jobs;
 pub mod ops;
 pub mod results;
 pub mod sources;
+pub mod survey;
 pub mod upload;
 pub mod views;
 pub mod watch;
@@ -82,6 +83,7 @@ pub struct HttpConfig {
         (name = "jobs", description = "One frame, one job"),
         (name = "flights", description = "Frames submitted together"),
         (name = "results", description = "Targets as CSV or GeoJSON"),
+        (name = "survey", description = "Surveyed ground control points and the GCP files for photogrammetry software"),
         (name = "operations", description = "Health and metrics"),
     )
 )]
@@ -124,6 +126,8 @@ fn api_routes() -> OpenApiRouter<AppState> {
         .routes(routes!(flights::get_flight_results_csv))
         .routes(routes!(flights::get_flight_results_geojson))
         .routes(routes!(flights::cancel_flight))
+        .routes(routes!(survey::put_survey, survey::get_survey))
+        .routes(routes!(survey::get_export))
         .routes(routes!(ops::livez))
         .routes(routes!(ops::readyz))
         .routes(routes!(ops::metrics))

@@ -1,7 +1,7 @@
 //! Writing a finished flight's results back to object storage: when every
 //! job of a flight with `results_to` has ended, `results.csv` and
-//! `results.geojson` (the same bytes as the API's) are written under that
-//! prefix. A failed write is retried with backoff, and after
+//! `results.geojson` (the same bytes as the API's), and with a survey the
+//! GCP files (`gcp_list.txt` and the rest), are written under that prefix. A failed write is retried with backoff, and after
 //! [`MAX_ATTEMPTS`] the export is marked failed with the reason, shown on
 //! the flight. Export state is in the store, so a restart finishes what a
 //! stop interrupted.
@@ -17,7 +17,9 @@ use crate::pipeline::output::Format;
 use crate::storage::s3::{S3Url, S3};
 use crate::storage::DataDir;
 
+use super::gcp;
 use super::model::{FlightId, FlightRecord, JobRecord};
+use super::results::render_jobs;
 use super::store::Store;
 
 /// Attempts before an export is marked failed.
@@ -85,16 +87,25 @@ async fn export(
     let Ok(S3Url::Prefix { bucket, prefix }) = S3Url::parse(&to) else {
         return Err(format!("{to:?} is not an s3://bucket/prefix/"));
     };
-    let (data, crs) = (data.clone(), flight.params.crs.clone());
-    let rendered = tokio::task::spawn_blocking(move || {
-        let csv = crate::jobs::results::render_jobs(&data, &jobs, &crs, Format::Csv)?;
-        let geojson = crate::jobs::results::render_jobs(&data, &jobs, &crs, Format::GeoJson)?;
-        Ok::<_, String>((csv, geojson))
+    let (data, flight) = (data.clone(), flight.clone());
+    let files = tokio::task::spawn_blocking(move || {
+        let crs = &flight.params.crs;
+        let mut files = vec![
+            ("results.csv", render_jobs(&data, &jobs, crs, Format::Csv)?),
+            (
+                "results.geojson",
+                render_jobs(&data, &jobs, crs, Format::GeoJson)?,
+            ),
+        ];
+        if let Some(stored) = gcp::load_survey(&data, flight.id)? {
+            let survey = stored.parse().map_err(|e| format!("stored survey: {e}"))?;
+            files.extend(gcp::flight_exports(&data, &flight, &jobs, &survey)?);
+        }
+        Ok::<_, String>(files)
     })
     .await
     .map_err(|e| format!("rendering results: {e}"))??;
-    let (csv, geojson) = rendered;
-    for (name, text) in [("results.csv", csv), ("results.geojson", geojson)] {
+    for (name, text) in files {
         s3.put(&bucket, &format!("{prefix}{name}"), text.into_bytes())
             .await
             .map_err(|e| e.to_string())?;

@@ -4,6 +4,7 @@
 
 pub mod export;
 pub mod fetch;
+pub mod gcp;
 pub mod model;
 pub mod params;
 pub mod pool;

@@ -19,6 +19,12 @@ pub fn render_jobs(
     format: Format,
 ) -> Result<String, String> {
     let crs = TargetCrs::parse(crs).map_err(|e| format!("stored CRS: {e}"))?;
+    let frames = load_frames(data, jobs)?;
+    Ok(render(format, &frames, &crs))
+}
+
+/// The stored results of the succeeded jobs among `jobs`, by image name.
+pub fn load_frames(data: &DataDir, jobs: &[JobRecord]) -> Result<Vec<FrameResult>, String> {
     let mut frames: Vec<FrameResult> = Vec::with_capacity(jobs.len());
     for job in jobs.iter().filter(|j| j.state == JobState::Succeeded) {
         let path = data.result_path(job.id);
@@ -29,5 +35,5 @@ pub fn render_jobs(
         frames.push(frame);
     }
     frames.sort_by(|a, b| a.image.cmp(&b.image));
-    Ok(render(format, &frames, &crs))
+    Ok(frames)
 }

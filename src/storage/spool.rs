@@ -27,7 +27,7 @@ impl DataDir {
         let dir = DataDir {
             root: root.to_path_buf(),
         };
-        for sub in ["frames", "results", "spool"] {
+        for sub in ["frames", "results", "spool", "surveys"] {
             std::fs::create_dir_all(root.join(sub))?;
         }
         for entry in std::fs::read_dir(dir.root.join("spool"))? {
@@ -50,6 +50,11 @@ impl DataDir {
 
     pub fn result_path(&self, job: Uuid) -> PathBuf {
         self.root.join("results").join(format!("{job}.json"))
+    }
+
+    /// A flight's survey of ground control points.
+    pub fn survey_path(&self, flight: Uuid) -> PathBuf {
+        self.root.join("surveys").join(format!("{flight}.json"))
     }
 
     /// A fresh temporary path in the spool.

@@ -1,0 +1,64 @@
+//! A flight's survey of ground control points and the GCP files made from
+//! it: the survey is stored beside the flight (`surveys/{flight}.json`, the
+//! file's text as uploaded), and the exports are computed from the stored
+//! frame results whenever they are asked for, so a survey can come before
+//! or after the frames.
+
+use serde::{Deserialize, Serialize};
+
+use crate::pipeline::georef::Transformer;
+use crate::storage::DataDir;
+use crate::survey::matching::{match_frames, DEFAULT_PIXEL_TOLERANCE};
+use crate::survey::parse::{parse_survey, SurveyError};
+use crate::survey::{export, Survey};
+
+use super::model::{FlightId, FlightRecord, JobRecord};
+use super::results::load_frames;
+
+/// A survey as stored: the uploaded text and the CRS parameter, if any.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StoredSurvey {
+    pub crs: Option<String>,
+    pub text: String,
+}
+
+impl StoredSurvey {
+    pub fn parse(&self) -> Result<Survey, SurveyError> {
+        parse_survey(&self.text, self.crs.as_deref())
+    }
+}
+
+/// Stores a flight's survey (replacing any before).
+pub fn save_survey(data: &DataDir, flight: FlightId, survey: &StoredSurvey) -> std::io::Result<()> {
+    let bytes = serde_json::to_vec(survey).expect("survey serializes");
+    data.write_atomic(&data.survey_path(flight), &bytes)
+}
+
+/// A flight's stored survey, if it has one.
+pub fn load_survey(data: &DataDir, flight: FlightId) -> Result<Option<StoredSurvey>, String> {
+    match std::fs::read(data.survey_path(flight)) {
+        Ok(bytes) => serde_json::from_slice(&bytes)
+            .map(Some)
+            .map_err(|e| format!("stored survey: {e}")),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(format!("cannot read the stored survey: {e}")),
+    }
+}
+
+/// Every export file of a flight with a survey, from its succeeded jobs.
+/// Blocking: reads results and runs PROJ.
+pub fn flight_exports(
+    data: &DataDir,
+    flight: &FlightRecord,
+    jobs: &[JobRecord],
+    survey: &Survey,
+) -> Result<Vec<(&'static str, String)>, String> {
+    let frames = load_frames(data, jobs)?;
+    let tolerance = flight
+        .params
+        .pixel_tolerance
+        .unwrap_or(DEFAULT_PIXEL_TOLERANCE);
+    let mut transformer = Transformer::default();
+    let matched = match_frames(&frames, survey, tolerance, &mut transformer);
+    export::all(survey, &matched, tolerance, &mut transformer)
+}

@@ -6,6 +6,7 @@
 //! Pixel convention: pixel (i, j) covers [i-0.5, i+0.5] x [j-0.5, j+0.5], so
 //! truth is in OpenCV coordinates (centre of the top-left pixel is 0,0).
 
+mod exif;
 mod printed;
 mod render;
 mod write;
@@ -14,6 +15,7 @@ use std::fmt;
 use std::path::Path;
 use std::str::FromStr;
 
+pub use exif::{write_drone_meta, DroneMeta};
 pub use printed::{PrintedDesign, PrintedSpec};
 pub use render::{render, Clutter, GreyImage, MarkerSpec, Scene, Truth};
 pub use write::{write_image, GeoSpec, SampleFormat};

@@ -261,6 +261,30 @@ fn csv_field(s: &str) -> String {
     }
 }
 
+/// Rounds pixel figures to 0.001 px and confidences to 0.0001 throughout a
+/// report, so it reads cleanly and is the same bytes wherever it is made.
+fn round_figures(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Object(map) => {
+            for (key, value) in map.iter_mut() {
+                let decimals = match key.as_str() {
+                    "px" | "py" | "deviation_px" | "mean_deviation_px" | "max_deviation_px" => 3,
+                    "match_confidence" => 4,
+                    _ => {
+                        round_figures(value);
+                        continue;
+                    }
+                };
+                if let Some(f) = value.as_f64() {
+                    *value = json!(round(f, decimals));
+                }
+            }
+        }
+        serde_json::Value::Array(items) => items.iter_mut().for_each(round_figures),
+        _ => {}
+    }
+}
+
 /// The per-point report with every decision, as JSON.
 pub fn report_json(
     survey: &Survey,
@@ -268,7 +292,7 @@ pub fn report_json(
     reports: &[PointReport],
     tolerance_px: f64,
 ) -> String {
-    let doc = json!({
+    let mut doc = json!({
         "survey_crs": survey.crs,
         "pixel_tolerance": tolerance_px,
         "points": reports,
@@ -276,6 +300,7 @@ pub fn report_json(
         "observations": matched.observations,
         "unmatched": matched.unmatched,
     });
+    round_figures(&mut doc);
     serde_json::to_string_pretty(&doc).expect("json") + "\n"
 }
 

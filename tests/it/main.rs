@@ -5,6 +5,7 @@ mod support;
 
 mod accuracy;
 mod cli;
+mod gcp;
 mod georef;
 mod printed;
 mod s3;

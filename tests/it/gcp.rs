@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use gcp_tagger::pipeline::detect::MarkerType;
+use gcp_tagger::survey::export::FILES;
 use gcp_tagger::synth::{
     render, write_drone_meta, write_image, Clutter, DroneMeta, GeoSpec, MarkerSpec, PrintedDesign,
     PrintedSpec, SampleFormat, Scene,
@@ -446,14 +447,8 @@ fn georeferenced_frames_give_byte_exact_gcp_files_from_the_cli_and_the_service()
         (Some(7), Some(1))
     );
     server.wait_flight(&id);
-    for file in [
-        "gcp_list.txt",
-        "pix4d_marks.csv",
-        "metashape_markers.xml",
-        "survey_points.geojson",
-        "observations.csv",
-        "report.json",
-    ] {
+    assert_eq!(summary["exports"].as_array().unwrap().len(), FILES.len());
+    for file in FILES {
         let served = server.get_text(&format!("/v1/flights/{id}/exports/{file}"));
         assert_eq!(served, read(file), "{file}");
     }

@@ -70,6 +70,9 @@ pub enum Command {
     /// Check that a running service answers 200 on a route (container
     /// HEALTHCHECK; the runtime image has no curl). Exit 0 when it does.
     Probe(ProbeArgs),
+    /// One job in a worker process (started by the service, not by hand).
+    #[command(hide = true)]
+    RunJob(crate::jobs::isolate::RunJobArgs),
 }
 
 #[derive(Args, Debug)]

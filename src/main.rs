@@ -30,6 +30,7 @@ fn main() -> ExitCode {
         Command::Sample(a) => cli::sample(a),
         Command::Serve(a) => serve(a),
         Command::Probe(a) => cli::probe(a),
+        Command::RunJob(a) => gcp_tagger::jobs::isolate::child_main(a),
         Command::Openapi => {
             println!("{}", gcp_tagger::api::openapi_json());
             ExitCode::SUCCESS

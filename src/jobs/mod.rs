@@ -5,6 +5,7 @@
 pub mod export;
 pub mod fetch;
 pub mod gcp;
+pub mod isolate;
 pub mod model;
 pub mod params;
 pub mod pool;

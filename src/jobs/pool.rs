@@ -1,25 +1,35 @@
 //! The worker pool: one OS thread per worker (CPU work never touches the
-//! async runtime), each claiming the next queued job, estimating its working
-//! set from the raster header, waiting for that share of the RAM budget, and
-//! running the pipeline with a cooperative stop flag checked at every tile.
+//! async runtime), each claiming the next queued job and running it in a
+//! child process (see [`super::isolate`]): the child reads the raster
+//! header and estimates its working set, the worker waits for that share
+//! of the RAM budget, and the child runs the pipeline under OS limits. A
+//! cancel or a stop kills the child; a child that dies puts its job back in
+//! the queue, up to [`MAX_ATTEMPTS`] workers.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::pipeline::frame::{detect_frame, FrameError, FrameObserver};
-use crate::pipeline::georef::Transformer;
-use crate::pipeline::memory::{estimate_frame_bytes, RamBudget, MIB};
-use crate::pipeline::raster::{open_frame, RasterError};
+use crate::pipeline::memory::{RamBudget, MIB};
 use crate::storage::DataDir;
 use crate::telemetry::{Metrics, OutcomeLabels};
 
-use super::model::JobError;
+use super::isolate::{cpu_limit_secs, ChildLine, JobChild};
+use super::model::{JobError, JobRecord};
 use super::store::{Claim, Outcome, Store};
 
 /// How long an idle worker waits before re-checking the stop flag.
 const IDLE_WAIT: Duration = Duration::from_millis(250);
+
+/// How often a worker looks at cancel and stop flags while its child runs.
+const POLL: Duration = Duration::from_millis(100);
+
+/// Workers a frame may kill before its job fails instead of being retried.
+pub const MAX_ATTEMPTS: u32 = 3;
+
+/// Memory a worker process may use beyond twice its frame's estimate.
+const CHILD_HEADROOM_BYTES: u64 = 256 * MIB;
 
 /// Memory of the service's async side (HTTP connections, upload buffers,
 /// the job store) on top of the pipeline's base. The load benchmark measured
@@ -128,8 +138,6 @@ struct Worker {
 
 impl Worker {
     fn run(self) {
-        // PROJ objects are per thread; reuse them across jobs.
-        let mut transformer = Transformer::default();
         loop {
             let claim = match self.store.claim_next(&self.stop_claiming, IDLE_WAIT) {
                 Ok(Some(claim)) => claim,
@@ -141,16 +149,16 @@ impl Worker {
                     continue;
                 }
             };
-            self.run_claim(claim, &mut transformer);
+            self.run_claim(claim);
         }
     }
 
-    fn run_claim(&self, claim: Claim, transformer: &mut Transformer) {
+    fn run_claim(&self, claim: Claim) {
         let job = &claim.job;
         let span = tracing::info_span!("job", job.id = %job.id, image = %job.image);
         let _enter = span.enter();
         let started = Instant::now();
-        let (outcome, megapixels) = self.execute(&claim, transformer);
+        let (outcome, megapixels) = self.execute(&claim);
         let label = match &outcome {
             Outcome::Succeeded { targets, .. } => {
                 tracing::info!(targets, "job succeeded");
@@ -186,9 +194,9 @@ impl Worker {
         }
     }
 
-    /// Runs the pipeline on a claimed job; returns its outcome and the
-    /// frame's megapixels.
-    fn execute(&self, claim: &Claim, transformer: &mut Transformer) -> (Outcome, f64) {
+    /// Runs a claimed job in a child process (see [`super::isolate`]);
+    /// returns its outcome and the frame's megapixels.
+    fn execute(&self, claim: &Claim) -> (Outcome, f64) {
         let job = &claim.job;
         let fail = |code: &str, message: String| {
             (
@@ -199,93 +207,108 @@ impl Worker {
                 0.0,
             )
         };
-        let options = match claim.params.check() {
-            Ok((_, options)) => options,
-            Err(e) => return fail("invalid_parameters", e.to_string()),
+        let frame = self.data.frame_path(job.id, &job.ext);
+        let result = self.data.result_path(job.id);
+        let mut child = match JobChild::spawn(&frame, &job.image, &claim.params, &result) {
+            Ok(c) => c,
+            Err(e) => return fail("internal", format!("cannot start a worker process: {e}")),
         };
-        let path = self.data.frame_path(job.id, &job.ext);
-        let frame = match open_frame(&path) {
-            Ok(frame) => frame,
-            Err(e) => return fail(raster_code(&e), e.to_string()),
-        };
-        let header = frame.header().clone();
-        let megapixels = (header.width * header.height) as f64 / 1e6;
-        self.store.progress(
-            job.id,
-            Some((header.width as u32, header.height as u32)),
-            0,
-            0,
-        );
-        let need = estimate_frame_bytes(&header, options.tile_size);
-        let _permit = match self.budget.acquire(need) {
-            Ok(permit) => permit,
-            Err(e) => return fail("frame_too_large", e.to_string()),
-        };
-        if self.stop_claiming.load(Ordering::SeqCst) {
-            // Shutting down: waiting for memory was the whole run so far.
+        let mut megapixels = 0.0;
+        let mut permit = None;
+        loop {
+            let line = match child.next_line(POLL) {
+                Ok(Some(line)) => line,
+                Ok(None) => {
+                    if claim.cancel.load(Ordering::SeqCst) {
+                        child.kill();
+                        return (Outcome::Canceled, 0.0);
+                    }
+                    if self.abort.load(Ordering::SeqCst) {
+                        child.kill();
+                        return (Outcome::Interrupted, 0.0);
+                    }
+                    continue;
+                }
+                Err(()) => break,
+            };
+            match ChildLine::parse(&line) {
+                Some(ChildLine::Header {
+                    width,
+                    height,
+                    need,
+                }) => {
+                    megapixels = width as f64 * height as f64 / 1e6;
+                    self.store.progress(job.id, Some((width, height)), 0, 0);
+                    match self.budget.acquire(need) {
+                        Ok(p) => permit = Some(p),
+                        Err(e) => return fail("frame_too_large", e.to_string()),
+                    }
+                    if self.stop_claiming.load(Ordering::SeqCst) {
+                        // Shutting down: waiting for memory was the whole run.
+                        return (Outcome::Interrupted, 0.0);
+                    }
+                    let data_limit = need.saturating_mul(2) + CHILD_HEADROOM_BYTES;
+                    if let Err(e) = child.go(data_limit, cpu_limit_secs(width, height)) {
+                        tracing::warn!(error = %e, "the worker process did not take its limits");
+                    }
+                }
+                Some(ChildLine::Tile { done, total }) => {
+                    self.store.progress(job.id, None, done, total)
+                }
+                Some(ChildLine::Done {
+                    targets,
+                    width,
+                    height,
+                }) => {
+                    drop(permit);
+                    return match child.wait_abnormal() {
+                        None => (
+                            Outcome::Succeeded {
+                                width,
+                                height,
+                                targets,
+                            },
+                            megapixels,
+                        ),
+                        Some(end) => self.crashed(job, &end),
+                    };
+                }
+                Some(ChildLine::Error { code, message }) => {
+                    let _ = child.wait_abnormal();
+                    return fail(&code, message);
+                }
+                None => tracing::warn!(%line, "unexpected line from the worker process"),
+            }
+        }
+        drop(permit);
+        if claim.cancel.load(Ordering::SeqCst) {
+            return (Outcome::Canceled, 0.0);
+        }
+        if self.abort.load(Ordering::SeqCst) {
             return (Outcome::Interrupted, 0.0);
         }
-        let observer = JobObserver {
-            worker: self,
-            claim,
-        };
-        match detect_frame(frame, &job.image, &options, transformer, &observer) {
-            Ok(result) => {
-                let bytes = serde_json::to_vec(&result).expect("results serialize");
-                if let Err(e) = self
-                    .data
-                    .write_atomic(&self.data.result_path(job.id), &bytes)
-                {
-                    return fail("internal", format!("cannot store the result: {e}"));
-                }
-                (
-                    Outcome::Succeeded {
-                        width: result.width as u32,
-                        height: result.height as u32,
-                        targets: result.targets.len() as u32,
-                    },
-                    megapixels,
-                )
-            }
-            Err(FrameError::Canceled) if claim.cancel.load(Ordering::SeqCst) => {
-                (Outcome::Canceled, 0.0)
-            }
-            Err(FrameError::Canceled) => (Outcome::Interrupted, 0.0),
-            Err(FrameError::Raster(e)) => fail(raster_code(&e), e.to_string()),
-            Err(FrameError::TooLarge(e)) => fail("frame_too_large", e.to_string()),
-            Err(e @ (FrameError::Detect(_) | FrameError::OpenCv(_))) => {
-                fail("detection_failed", e.to_string())
-            }
+        let end = child
+            .wait_abnormal()
+            .unwrap_or_else(|| "ended without a result".into());
+        self.crashed(job, &end)
+    }
+
+    /// A worker process died: the job goes back to the queue, or fails
+    /// once it has killed [`MAX_ATTEMPTS`] workers.
+    fn crashed(&self, job: &JobRecord, end: &str) -> (Outcome, f64) {
+        tracing::warn!(attempts = job.attempts, end, "the worker process died");
+        if job.attempts >= MAX_ATTEMPTS {
+            return (
+                Outcome::Failed(JobError {
+                    code: "worker_crashed".into(),
+                    message: format!(
+                        "the worker process died on each of {} attempts (last: {end}); the frame is not retried",
+                        job.attempts
+                    ),
+                }),
+                0.0,
+            );
         }
-    }
-}
-
-/// Stable codes for frames that cannot be read.
-fn raster_code(e: &RasterError) -> &'static str {
-    match e {
-        RasterError::Unsupported(_) => "unsupported_frame",
-        RasterError::TooSmall { .. } => "frame_too_small",
-        RasterError::Bands(_) => "unsupported_bands",
-        RasterError::Empty => "empty_frame",
-        RasterError::Io(_) | RasterError::RefusedPath(_) | RasterError::Decode { .. } => {
-            "unreadable_frame"
-        }
-    }
-}
-
-struct JobObserver<'a> {
-    worker: &'a Worker,
-    claim: &'a Claim,
-}
-
-impl FrameObserver for JobObserver<'_> {
-    fn tile_done(&self, done: usize, total: usize) {
-        self.worker
-            .store
-            .progress(self.claim.job.id, None, done as u32, total as u32);
-    }
-
-    fn should_stop(&self) -> bool {
-        self.claim.cancel.load(Ordering::SeqCst) || self.worker.abort.load(Ordering::SeqCst)
+        (Outcome::Interrupted, 0.0)
     }
 }

@@ -1,0 +1,371 @@
+//! Crash and resource isolation: every job's untrusted frame is decoded
+//! and searched in a child process (`gcp-tagger run-job`), so a segfault
+//! or abort in GDAL or OpenCV, or a runaway, ends that child only.
+//!
+//! The child reads the frame's header, says how much memory it needs, and
+//! waits; the parent takes that share of the RAM budget and answers `go`
+//! with the limits; the child then caps itself (RLIMIT_DATA at its current
+//! data size plus twice the estimate, RLIMIT_CPU from the frame's size) and
+//! runs. It dies with the server (PR_SET_PDEATHSIG). Protocol, one line each
+//! on the child's stdout:
+//!
+//! ```text
+//! header WIDTH HEIGHT NEED_BYTES
+//! tile DONE TOTAL
+//! done TARGETS WIDTH HEIGHT          (result JSON written to --result)
+//! error CODE MESSAGE
+//! ```
+//!
+//! and on its stdin `go DATA_LIMIT_BYTES CPU_SECS`.
+
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, ExitCode, Stdio};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::time::Duration;
+
+use crate::pipeline::frame::{detect_frame, FrameError, FrameObserver};
+use crate::pipeline::georef::Transformer;
+use crate::pipeline::memory::{estimate_frame_bytes, MIB};
+use crate::pipeline::raster::{open_frame, RasterError};
+
+use super::params::JobParams;
+
+/// What the child said last.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ChildLine {
+    Header {
+        width: u32,
+        height: u32,
+        need: u64,
+    },
+    Tile {
+        done: u32,
+        total: u32,
+    },
+    Done {
+        targets: u32,
+        width: u32,
+        height: u32,
+    },
+    Error {
+        code: String,
+        message: String,
+    },
+}
+
+impl ChildLine {
+    pub fn parse(line: &str) -> Option<ChildLine> {
+        let mut f = line.splitn(4, ' ');
+        let kind = f.next()?;
+        let mut num = || f.next()?.trim().parse::<u64>().ok();
+        Some(match kind {
+            "header" => ChildLine::Header {
+                width: num()? as u32,
+                height: num()? as u32,
+                need: num()?,
+            },
+            "tile" => ChildLine::Tile {
+                done: num()? as u32,
+                total: num()? as u32,
+            },
+            "done" => ChildLine::Done {
+                targets: num()? as u32,
+                width: num()? as u32,
+                height: num()? as u32,
+            },
+            "error" => {
+                let rest = line.strip_prefix("error ")?;
+                let (code, message) = rest.split_once(' ').unwrap_or((rest, ""));
+                ChildLine::Error {
+                    code: code.to_string(),
+                    message: message.to_string(),
+                }
+            }
+            _ => return None,
+        })
+    }
+}
+
+/// A running child and its lines.
+pub struct JobChild {
+    child: Child,
+    stdin: Option<ChildStdin>,
+    lines: Receiver<String>,
+}
+
+/// CPU seconds a frame may take: a minute plus 2 s per megapixel, about
+/// 30 times what the slowest mode needs on one core.
+pub fn cpu_limit_secs(width: u32, height: u32) -> u64 {
+    60 + 2 * (width as u64 * height as u64).div_ceil(1_000_000)
+}
+
+impl JobChild {
+    /// Starts `gcp-tagger run-job` on a frame.
+    pub fn spawn(
+        frame: &Path,
+        image: &str,
+        params: &JobParams,
+        result: &Path,
+    ) -> std::io::Result<JobChild> {
+        let exe = std::env::current_exe()?;
+        let mut cmd = Command::new(exe);
+        cmd.arg("run-job")
+            .arg("--frame")
+            .arg(frame)
+            .arg("--image")
+            .arg(image)
+            .arg("--params")
+            .arg(serde_json::to_string(params).expect("params serialize"))
+            .arg("--result")
+            .arg(result)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit());
+        // SAFETY: prctl is async-signal-safe; nothing else runs between
+        // fork and exec.
+        unsafe {
+            cmd.pre_exec(|| {
+                // The child dies with the server, whatever kills the server.
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let mut child = cmd.spawn()?;
+        let stdin = child.stdin.take();
+        let stdout = child.stdout.take().expect("piped stdout");
+        let (tx, lines) = mpsc::channel();
+        std::thread::Builder::new()
+            .name("job-child-reader".into())
+            .spawn(move || {
+                for line in BufReader::new(stdout).lines() {
+                    let Ok(line) = line else { break };
+                    if tx.send(line).is_err() {
+                        break;
+                    }
+                }
+            })?;
+        Ok(JobChild {
+            child,
+            stdin,
+            lines,
+        })
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// The next line, `Ok(None)` on timeout, `Err` once the child closed
+    /// its output (it has ended).
+    pub fn next_line(&self, timeout: Duration) -> Result<Option<String>, ()> {
+        match self.lines.recv_timeout(timeout) {
+            Ok(line) => Ok(Some(line)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => Err(()),
+        }
+    }
+
+    /// Lets the child run with these limits.
+    pub fn go(&mut self, data_limit: u64, cpu_secs: u64) -> std::io::Result<()> {
+        let stdin = self.stdin.as_mut().ok_or(std::io::ErrorKind::BrokenPipe)?;
+        writeln!(stdin, "go {data_limit} {cpu_secs}")?;
+        stdin.flush()
+    }
+
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// Waits for the end and describes an abnormal one; `None` for exit 0.
+    pub fn wait_abnormal(&mut self) -> Option<String> {
+        self.stdin.take();
+        match self.child.wait() {
+            Ok(status) if status.success() => None,
+            Ok(status) => Some(match status.signal() {
+                Some(sig) => format!("killed by signal {sig} ({})", signal_name(sig)),
+                None => format!("exited with status {}", status.code().unwrap_or(-1)),
+            }),
+            Err(e) => Some(format!("cannot be waited for: {e}")),
+        }
+    }
+}
+
+impl Drop for JobChild {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            self.kill();
+        }
+    }
+}
+
+pub fn signal_name(sig: i32) -> &'static str {
+    match sig {
+        libc::SIGSEGV => "SIGSEGV, a crash",
+        libc::SIGABRT => "SIGABRT, an abort or out of its memory limit",
+        libc::SIGBUS => "SIGBUS, a crash",
+        libc::SIGFPE => "SIGFPE, a crash",
+        libc::SIGILL => "SIGILL, a crash",
+        libc::SIGKILL => "SIGKILL",
+        libc::SIGXCPU => "SIGXCPU, over its CPU time limit",
+        _ => "a signal",
+    }
+}
+
+/// Stable codes for frames that cannot be read.
+pub fn raster_code(e: &RasterError) -> &'static str {
+    match e {
+        RasterError::Unsupported(_) => "unsupported_frame",
+        RasterError::TooSmall { .. } => "frame_too_small",
+        RasterError::Bands(_) => "unsupported_bands",
+        RasterError::Empty => "empty_frame",
+        RasterError::Io(_) | RasterError::RefusedPath(_) | RasterError::Decode { .. } => {
+            "unreadable_frame"
+        }
+    }
+}
+
+/// Arguments of the hidden `run-job` subcommand.
+#[derive(clap::Args, Debug)]
+pub struct RunJobArgs {
+    #[arg(long)]
+    pub frame: PathBuf,
+    #[arg(long)]
+    pub image: String,
+    /// The job's parameters as JSON (from the job store).
+    #[arg(long)]
+    pub params: String,
+    /// Where the result JSON goes (written whole or not at all).
+    #[arg(long)]
+    pub result: PathBuf,
+}
+
+struct Progress;
+
+impl FrameObserver for Progress {
+    fn tile_done(&self, done: usize, total: usize) {
+        say(&format!("tile {done} {total}"));
+    }
+}
+
+fn say(line: &str) {
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
+}
+
+fn fail(code: &str, message: &str) -> ExitCode {
+    say(&format!("error {code} {}", message.replace('\n', " ")));
+    ExitCode::from(2)
+}
+
+/// The child's side: `gcp-tagger run-job`.
+pub fn child_main(args: RunJobArgs) -> ExitCode {
+    crate::pipeline::init_native();
+    let params: JobParams = match serde_json::from_str(&args.params) {
+        Ok(p) => p,
+        Err(e) => return fail("invalid_parameters", &e.to_string()),
+    };
+    let options = match params.check() {
+        Ok((_, options)) => options,
+        Err(e) => return fail("invalid_parameters", &e.to_string()),
+    };
+    let frame = match open_frame(&args.frame) {
+        Ok(f) => f,
+        Err(e) => return fail(raster_code(&e), &e.to_string()),
+    };
+    let header = frame.header().clone();
+    let need = estimate_frame_bytes(&header, options.tile_size);
+    say(&format!("header {} {} {need}", header.width, header.height));
+    let mut line = String::new();
+    if std::io::stdin().read_line(&mut line).is_err() {
+        return ExitCode::from(3);
+    }
+    let mut go = line.split_whitespace();
+    let (Some("go"), Some(data), Some(cpu)) = (go.next(), go.next(), go.next()) else {
+        return ExitCode::from(3);
+    };
+    if let (Ok(data), Ok(cpu)) = (data.parse::<u64>(), cpu.parse::<u64>()) {
+        limit_self(data, cpu);
+    }
+    let mut transformer = Transformer::default();
+    match detect_frame(frame, &args.image, &options, &mut transformer, &Progress) {
+        Ok(result) => {
+            let bytes = serde_json::to_vec(&result).expect("results serialize");
+            if let Err(e) = write_whole(&args.result, &bytes) {
+                return fail("internal", &format!("cannot store the result: {e}"));
+            }
+            say(&format!(
+                "done {} {} {}",
+                result.targets.len(),
+                result.width,
+                result.height
+            ));
+            ExitCode::SUCCESS
+        }
+        Err(FrameError::Raster(e)) => fail(raster_code(&e), &e.to_string()),
+        Err(FrameError::TooLarge(e)) => fail("frame_too_large", &e.to_string()),
+        Err(e) => fail("detection_failed", &e.to_string()),
+    }
+}
+
+/// RLIMIT_DATA: what the process holds now plus `data` more; RLIMIT_CPU:
+/// `cpu` seconds (SIGXCPU), hard limit 10 s later (SIGKILL).
+fn limit_self(data: u64, cpu: u64) {
+    let now = std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("VmData:"))
+                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+        })
+        .map_or(512 * MIB, |kb| kb * 1024);
+    let set = |resource, soft: u64, hard: u64| {
+        let lim = libc::rlimit {
+            rlim_cur: soft as libc::rlim_t,
+            rlim_max: hard as libc::rlim_t,
+        };
+        // SAFETY: setrlimit on this process with a valid struct.
+        unsafe { libc::setrlimit(resource, &lim) };
+    };
+    let data_limit = now.saturating_add(data);
+    set(libc::RLIMIT_DATA, data_limit, data_limit);
+    set(libc::RLIMIT_CPU, cpu, cpu + 10);
+}
+
+fn write_whole(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension("part");
+    std::fs::write(&tmp, bytes)?;
+    std::fs::File::open(&tmp)?.sync_all()?;
+    std::fs::rename(&tmp, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn child_lines_parse() {
+        assert_eq!(
+            ChildLine::parse("header 4000 3000 71303168"),
+            Some(ChildLine::Header {
+                width: 4000,
+                height: 3000,
+                need: 71303168
+            })
+        );
+        assert_eq!(
+            ChildLine::parse("error unreadable_frame cannot read: truncated JPEG"),
+            Some(ChildLine::Error {
+                code: "unreadable_frame".into(),
+                message: "cannot read: truncated JPEG".into()
+            })
+        );
+        assert_eq!(ChildLine::parse("tile 3"), None);
+        assert_eq!(ChildLine::parse("nonsense"), None);
+    }
+}

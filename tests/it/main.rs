@@ -5,6 +5,7 @@ mod support;
 
 mod accuracy;
 mod cli;
+mod durability;
 mod gcp;
 mod georef;
 mod printed;

@@ -129,6 +129,42 @@ impl Server {
         }
     }
 
+    /// Kills the process with SIGKILL (no shutdown at all) and reaps it.
+    pub fn kill9(&mut self) {
+        let mut child = self.child.take().expect("running");
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+
+    /// Pids of the worker processes running `image` (`run-job --image`).
+    pub fn worker_pids(&self, image: &str) -> Vec<u32> {
+        let server = self.pid();
+        let mut pids = Vec::new();
+        for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+            let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+                continue;
+            };
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            // ppid is the 4th field, after the parenthesised command name.
+            let ppid = stat
+                .rsplit_once(')')
+                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+                .and_then(|p| p.parse::<u32>().ok());
+            if ppid != Some(server) {
+                continue;
+            }
+            let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+            let args: Vec<&[u8]> = cmdline.split(|b| *b == 0).collect();
+            let runs = args
+                .windows(2)
+                .any(|w| w[0] == b"--image" && w[1] == image.as_bytes());
+            if args.iter().any(|a| *a == b"run-job") && runs {
+                pids.push(pid);
+            }
+        }
+        pids
+    }
+
     /// Sends SIGTERM and waits for the process to end.
     pub fn stop(&mut self) -> ExitStatus {
         let mut child = self.child.take().expect("running");

@@ -1,0 +1,145 @@
+//! Nothing lost: a server killed with SIGKILL mid-flight completes every
+//! acknowledged job exactly once after a restart, and a worker process that
+//! dies costs its job a retry (or, after three deaths, a clear failure)
+//! while the server and the other jobs carry on.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use gcp_tagger::synth::{write_image, GreyImage, SampleFormat};
+use serde_json::Value;
+
+use crate::server::Server;
+use crate::service::{cli_output, flight, CRS};
+
+/// A large flat JPEG: seconds of work for one worker, no targets.
+fn big_frame(dir: &Path, name: &str) -> PathBuf {
+    let (w, h) = (8000, 6000);
+    let img = GreyImage {
+        width: w,
+        height: h,
+        data: (0..w * h).map(|i| 100.0 + (i % 7) as f32).collect(),
+    };
+    let path = dir.join(name);
+    write_image(&path, &img, SampleFormat::Jpeg, None).unwrap();
+    path
+}
+
+fn jobs_of(server: &Server, flight: &str) -> Vec<Value> {
+    server.get_json(&format!("/v1/flights/{flight}/jobs"))["items"]
+        .as_array()
+        .unwrap()
+        .clone()
+}
+
+fn job_named<'a>(jobs: &'a [Value], image: &str) -> &'a Value {
+    jobs.iter().find(|j| j["image"] == image).unwrap()
+}
+
+/// Waits until `f` holds, up to a minute.
+fn wait_until(what: &str, mut f: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while !f() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn kill_9_mid_flight_then_restart_completes_every_job_once() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let big = big_frame(dir.path(), "big_0.jpg");
+    let data = dir.path().join("d");
+    let mut server = Server::start(&data, &["--workers", "1"]);
+    let mut upload: Vec<&Path> = vec![big.as_path()];
+    upload.extend(frames.iter().map(|p| p.as_path()));
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
+    assert_eq!(r.status(), 201);
+    let flight: Value = r.json().unwrap();
+    let id = flight["flight"]["id"].as_str().unwrap().to_string();
+
+    // Kill the server while the big frame's worker runs.
+    wait_until("the big frame's worker", || {
+        !server.worker_pids("big_0.jpg").is_empty()
+    });
+    let orphan = server.worker_pids("big_0.jpg")[0];
+    server.kill9();
+    // The worker process dies with the server.
+    wait_until("the orphaned worker to die", || {
+        !Path::new(&format!("/proc/{orphan}")).exists()
+            || std::fs::read_to_string(format!("/proc/{orphan}/stat"))
+                .is_ok_and(|s| s.contains(") Z"))
+    });
+
+    let server = Server::start(&data, &["--workers", "1"]);
+    let done = server.wait_flight(&id);
+    assert_eq!(done["jobs"]["succeeded"], 4, "{done}");
+    let jobs = jobs_of(&server, &id);
+    assert_eq!(jobs.len(), 4, "no job lost or duplicated");
+    assert_eq!(job_named(&jobs, "big_0.jpg")["attempts"], 2);
+    // Results equal an uninterrupted run of the same frames.
+    let csv = server.get_text(&format!("/v1/flights/{id}/results.csv"));
+    let mut all: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
+    all.push(big.as_path());
+    assert_eq!(csv, cli_output(&all, "csv"));
+}
+
+#[test]
+fn a_dying_worker_costs_a_retry_and_three_deaths_fail_the_job() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let retried = big_frame(dir.path(), "big_retried.jpg");
+    let doomed = big_frame(dir.path(), "big_doomed.jpg");
+    let server = Server::start(&dir.path().join("d"), &["--workers", "2"]);
+    let mut upload: Vec<&Path> = vec![retried.as_path(), doomed.as_path()];
+    upload.extend(frames.iter().map(|p| p.as_path()));
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
+    assert_eq!(r.status(), 201);
+    let id = r.json::<Value>().unwrap()["flight"]["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+
+    let kill = |image: &str| {
+        wait_until(image, || !server.worker_pids(image).is_empty());
+        for pid in server.worker_pids(image) {
+            // SAFETY: kill(2) on a process of this test's server.
+            unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+        }
+    };
+    // One death: the job is retried and succeeds.
+    kill("big_retried.jpg");
+    // Three deaths: the job fails with the reason.
+    for attempt in 1..=3 {
+        kill("big_doomed.jpg");
+        if attempt < 3 {
+            wait_until("the doomed job's retry", || {
+                job_named(&jobs_of(&server, &id), "big_doomed.jpg")["attempts"] == attempt + 1
+            });
+        }
+    }
+    let done = server.wait_flight(&id);
+    let jobs = jobs_of(&server, &id);
+    let doomed = job_named(&jobs, "big_doomed.jpg");
+    assert_eq!(doomed["state"], "failed", "{doomed}");
+    assert_eq!(doomed["error"]["code"], "worker_crashed");
+    assert_eq!(doomed["attempts"], 3);
+    let message = doomed["error"]["message"].as_str().unwrap();
+    assert!(message.contains("signal 9"), "{message}");
+    let retried = job_named(&jobs, "big_retried.jpg");
+    assert_eq!(
+        (retried["state"].as_str(), retried["attempts"].as_u64()),
+        (Some("succeeded"), Some(2))
+    );
+    assert_eq!(done["jobs"]["succeeded"], 4, "{done}");
+    for f in frames {
+        let name = f.file_name().unwrap().to_str().unwrap();
+        assert_eq!(job_named(&jobs, name)["attempts"], 1);
+    }
+    assert_eq!(server.get("/livez").status(), 200);
+    // The flat frames have no targets: the results are the small frames'.
+    let csv = server.get_text(&format!("/v1/flights/{id}/results.csv?partial=true"));
+    let paths: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
+    assert_eq!(csv, cli_output(&paths, "csv"));
+}

@@ -8,6 +8,10 @@ use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 
+/// Code of a submission that lost the race for its Idempotency-Key; the
+/// handler answers with the winner's result instead.
+pub const KEY_TAKEN: &str = "idempotency_key_taken";
+
 /// The media type of problem documents.
 pub const PROBLEM_JSON: &str = "application/problem+json";
 
@@ -142,7 +146,13 @@ impl From<QueryRejection> for ApiError {
 
 impl From<crate::jobs::StoreError> for ApiError {
     fn from(e: crate::jobs::StoreError) -> ApiError {
-        ApiError::internal("the job store failed", e)
+        match e {
+            crate::jobs::StoreError::KeyTaken => ApiError::conflict(
+                KEY_TAKEN,
+                "another request with this Idempotency-Key was recorded first",
+            ),
+            e => ApiError::internal("the job store failed", e),
+        }
     }
 }
 

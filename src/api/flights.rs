@@ -9,13 +9,14 @@ use uuid::Uuid;
 
 use super::error::{ApiError, Problem};
 use super::extract::{ApiQuery, IdPath};
+use super::idempotency::{self, Answer};
 use super::jobs::UploadQuery;
 use super::sources::{self, SourceRequest};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{results, watch, AppState};
 use crate::jobs::params::PARAM_KEYS;
-use crate::jobs::{FlightRecord, FlightState, JobParams, JobRecord};
+use crate::jobs::{FlightRecord, FlightState, IdemKey, JobParams, JobRecord};
 use crate::pipeline::output::Format;
 
 /// Keys of an upload's query string besides the detection parameters.
@@ -84,6 +85,7 @@ pub struct FlightUpload {
 #[utoipa::path(
     post, path = "/v1/flights", tag = "flights",
     params(UploadQuery,
+        ("Idempotency-Key" = Option<String>, Header, description = "Retry-safe submission: a repeated key answers with the first request's flight and creates nothing"),
         ("results_to" = Option<String>, Query, description = "Multipart uploads: `s3://bucket/prefix/` to write the results to when the flight finishes")),
     request_body(content(
         (FlightUpload = "multipart/form-data"),
@@ -106,6 +108,24 @@ pub async fn submit_flight(
     RawQuery(query): RawQuery,
     req: Request,
 ) -> Result<Response, ApiError> {
+    let (st, q) = (state.clone(), query.clone());
+    idempotency::run(
+        &state,
+        req,
+        "/v1/flights",
+        query.as_deref(),
+        Answer::Flight,
+        |req, key| submit_flight_inner(st, q, req, key),
+    )
+    .await
+}
+
+async fn submit_flight_inner(
+    state: AppState,
+    query: Option<String>,
+    req: Request,
+    idem: Option<IdemKey>,
+) -> Result<Response, ApiError> {
     let (params, extras) = checked_params(query.as_deref(), &["results_to"]).await?;
     let (flight, jobs, skipped) = if sources::is_json(&req) {
         if extras.results_to.is_some() {
@@ -117,7 +137,7 @@ pub async fn submit_flight(
         }
         let sourced = sources::receive(&state, req, true).await?;
         let target = Target::NewFlight(params, sourced.results_to);
-        let (flight, jobs) = sources::commit(&state, sourced.jobs, target).await?;
+        let (flight, jobs) = sources::commit(&state, sourced.jobs, target, idem).await?;
         (flight, jobs, sourced.skipped)
     } else {
         let results_to = match extras.results_to {
@@ -127,7 +147,13 @@ pub async fn submit_flight(
         let upload = upload::receive(&state, req, Expect::Many, None).await?;
         let (store, data) = (state.store.clone(), state.data.clone());
         let (flight, jobs) = tokio::task::spawn_blocking(move || {
-            upload::commit(&store, &data, upload, Target::NewFlight(params, results_to))
+            upload::commit(
+                &store,
+                &data,
+                upload,
+                Target::NewFlight(params, results_to),
+                idem,
+            )
         })
         .await
         .map_err(|e| ApiError::internal("recording the flight", e))??;
@@ -154,7 +180,8 @@ pub async fn submit_flight(
 #[utoipa::path(
     post, path = "/v1/flights/{id}/frames", tag = "flights",
     params(("id" = Uuid, Path, description = "Flight id"),
-        ("name" = Option<String>, Query, description = "Frame name, for a raw body")),
+        ("name" = Option<String>, Query, description = "Frame name, for a raw body"),
+        ("Idempotency-Key" = Option<String>, Header, description = "Retry-safe submission: a repeated key answers with the first request's jobs and creates nothing")),
     request_body(content(
         (FlightUpload = "multipart/form-data"),
         (Vec<u8> = "application/octet-stream"),
@@ -178,6 +205,26 @@ pub async fn add_frames(
     IdPath(id): IdPath,
     RawQuery(query): RawQuery,
     req: Request,
+) -> Result<Response, ApiError> {
+    let route = format!("/v1/flights/{id}/frames");
+    let (st, q) = (state.clone(), query.clone());
+    idempotency::run(
+        &state,
+        req,
+        &route,
+        query.as_deref(),
+        Answer::Flight,
+        |req, key| add_frames_inner(st, id, q, req, key),
+    )
+    .await
+}
+
+async fn add_frames_inner(
+    state: AppState,
+    id: Uuid,
+    query: Option<String>,
+    req: Request,
+    idem: Option<IdemKey>,
 ) -> Result<Response, ApiError> {
     let mut name = None;
     for (k, v) in form_urlencoded::parse(query.as_deref().unwrap_or("").as_bytes()) {
@@ -204,7 +251,8 @@ pub async fn add_frames(
             .with_field("name"));
         }
         let sourced = sources::receive(&state, req, false).await?;
-        let (flight, jobs) = sources::commit(&state, sourced.jobs, Target::Flight(id)).await?;
+        let (flight, jobs) =
+            sources::commit(&state, sourced.jobs, Target::Flight(id), idem).await?;
         return Ok(submitted(&state, flight, jobs, sourced.skipped));
     }
     let is_multipart = req
@@ -227,7 +275,7 @@ pub async fn add_frames(
     let upload = upload::receive(&state, req, expect, name).await?;
     let (store, data) = (state.store.clone(), state.data.clone());
     let (flight, jobs) = tokio::task::spawn_blocking(move || {
-        upload::commit(&store, &data, upload, Target::Flight(id))
+        upload::commit(&store, &data, upload, Target::Flight(id), idem)
     })
     .await
     .map_err(|e| ApiError::internal("recording the frames", e))??;

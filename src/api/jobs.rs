@@ -8,9 +8,11 @@ use uuid::Uuid;
 
 use super::error::{ApiError, Problem};
 use super::extract::{ApiQuery, IdPath};
+use super::idempotency::{self, Answer};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{flights::checked_params, results, watch, AppState};
+use crate::jobs::IdemKey;
 use crate::jobs::{JobFilter, JobState};
 use crate::pipeline::output::Format;
 
@@ -61,7 +63,8 @@ pub struct FrameUpload {
 /// The job belongs to a new flight of one frame.
 #[utoipa::path(
     post, path = "/v1/jobs", tag = "jobs",
-    params(UploadQuery),
+    params(UploadQuery,
+        ("Idempotency-Key" = Option<String>, Header, description = "Retry-safe submission: a repeated key answers with the first request's job and creates nothing")),
     request_body(content(
         (FrameUpload = "multipart/form-data"),
         (Vec<u8> = "application/octet-stream"),
@@ -83,6 +86,24 @@ pub async fn submit_job(
     RawQuery(query): RawQuery,
     req: Request,
 ) -> Result<Response, ApiError> {
+    let (st, q) = (state.clone(), query.clone());
+    idempotency::run(
+        &state,
+        req,
+        "/v1/jobs",
+        query.as_deref(),
+        Answer::Job,
+        |req, key| submit_job_inner(st, q, req, key),
+    )
+    .await
+}
+
+async fn submit_job_inner(
+    state: AppState,
+    query: Option<String>,
+    req: Request,
+    idem: Option<IdemKey>,
+) -> Result<Response, ApiError> {
     let (params, extras) = checked_params(query.as_deref(), &["name"]).await?;
     let upload = upload::receive(&state, req, Expect::One, extras.name).await?;
     if let Some(Err(e)) = upload.parts.first().map(|p| &p.content) {
@@ -100,7 +121,7 @@ pub async fn submit_job(
     }
     let (store, data) = (state.store.clone(), state.data.clone());
     let (_, jobs) = tokio::task::spawn_blocking(move || {
-        upload::commit(&store, &data, upload, Target::NewFlight(params, None))
+        upload::commit(&store, &data, upload, Target::NewFlight(params, None), idem)
     })
     .await
     .map_err(|e| ApiError::internal("recording the job", e))??;

@@ -7,6 +7,7 @@
 pub mod error;
 pub mod extract;
 pub mod flights;
+pub mod idempotency;
 pub mod jobs;
 pub mod ops;
 pub mod results;

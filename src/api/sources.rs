@@ -15,7 +15,7 @@ use super::error::ApiError;
 use super::upload::{self, Target};
 use super::AppState;
 use crate::jobs::model::JobError;
-use crate::jobs::{FlightRecord, JobRecord, NewJob};
+use crate::jobs::{FlightRecord, IdemKey, JobRecord, NewJob};
 use crate::storage::s3::{ObjectRef, S3Error, S3Url};
 use crate::storage::spool::sanitize_name;
 
@@ -147,11 +147,12 @@ pub async fn commit(
     state: &AppState,
     jobs: Vec<NewJob>,
     target: Target,
+    idem: Option<IdemKey>,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
     let store = state.store.clone();
     tokio::task::spawn_blocking(move || {
         upload::check_names(&store, &target, jobs.iter().map(|j| j.image.as_str()))?;
-        upload::record(&store, &jobs, target)
+        upload::record(&store, &jobs, target, idem.as_ref())
     })
     .await
     .map_err(|e| ApiError::internal("recording the jobs", e))?

@@ -14,7 +14,7 @@ use uuid::Uuid;
 use super::error::ApiError;
 use super::AppState;
 use crate::jobs::model::JobError;
-use crate::jobs::{FlightId, FlightRecord, JobParams, JobRecord, NewJob};
+use crate::jobs::{FlightId, FlightRecord, IdemKey, JobParams, JobRecord, NewJob};
 use crate::storage::spool::{magic_hex, sanitize_name, sniff_image};
 use crate::storage::DataDir;
 
@@ -361,16 +361,17 @@ pub fn record(
     store: &crate::jobs::Store,
     jobs: &[NewJob],
     target: Target,
+    idem: Option<&IdemKey>,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
     let recorded = match target {
-        Target::NewFlight(params, export_to) => {
-            store.create_flight(&params, jobs, export_to).map(|f| {
+        Target::NewFlight(params, export_to) => store
+            .create_flight(&params, jobs, export_to, idem)
+            .map(|f| {
                 let jobs = store.flight_jobs(f.id).unwrap_or_default();
                 Some((f, jobs))
-            })
-        }
+            }),
         Target::Flight(id) => store
-            .add_to_flight(id, jobs)
+            .add_to_flight(id, jobs, idem)
             .map(|r| r.and_then(|jobs| Some((store.flight(id)?, jobs)))),
     };
     match recorded {
@@ -388,6 +389,7 @@ pub fn commit(
     data: &DataDir,
     mut upload: Upload,
     target: Target,
+    idem: Option<IdemKey>,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
     check_names(
         store,
@@ -419,7 +421,7 @@ pub fn commit(
         });
     }
     sync_dir(&data.root().join("frames"));
-    let done = record(store, &jobs, target)?;
+    let done = record(store, &jobs, target, idem.as_ref())?;
     // Committed: the frames belong to their jobs now.
     upload.parts.clear();
     Ok(done)

@@ -6,7 +6,9 @@
 //! waits; the parent takes that share of the RAM budget and answers `go`
 //! with the limits; the child then caps itself (RLIMIT_DATA at its current
 //! data size plus twice the estimate, RLIMIT_CPU from the frame's size) and
-//! runs. It dies with the server (PR_SET_PDEATHSIG). Protocol, one line each
+//! runs. It dies with the server (PR_SET_PDEATHSIG, set by the child:
+//! spawning goes through posix_spawn, never a bare fork, see
+//! [`JobChild::spawn`]). Protocol, one line each
 //! on the child's stdout:
 //!
 //! ```text
@@ -19,7 +21,7 @@
 //! and on its stdin `go DATA_LIMIT_BYTES CPU_SECS`.
 
 use std::io::{BufRead, BufReader, Write};
-use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, ExitCode, Stdio};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
@@ -120,20 +122,16 @@ impl JobChild {
             .arg(serde_json::to_string(params).expect("params serialize"))
             .arg("--result")
             .arg(result)
+            .arg("--parent")
+            .arg(std::process::id().to_string())
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit());
-        // SAFETY: prctl is async-signal-safe; nothing else runs between
-        // fork and exec.
-        unsafe {
-            cmd.pre_exec(|| {
-                // The child dies with the server, whatever kills the server.
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
+        // No pre_exec hook: that would make std fork() instead of
+        // posix_spawn(), and fork runs libproj's atfork handler, which
+        // closes PROJ's SQLite database in the child and can deadlock on a
+        // SQLite mutex another thread held at the fork. The child sets its
+        // parent-death signal itself.
         let mut child = cmd.spawn()?;
         let stdin = child.stdin.take();
         let stdout = child.stdout.take().expect("piped stdout");
@@ -242,6 +240,9 @@ pub struct RunJobArgs {
     /// Where the result JSON goes (written whole or not at all).
     #[arg(long)]
     pub result: PathBuf,
+    /// The server's pid: the child dies with it.
+    #[arg(long)]
+    pub parent: Option<u32>,
 }
 
 struct Progress;
@@ -265,6 +266,16 @@ fn fail(code: &str, message: &str) -> ExitCode {
 
 /// The child's side: `gcp-tagger run-job`.
 pub fn child_main(args: RunJobArgs) -> ExitCode {
+    if let Some(parent) = args.parent {
+        // SAFETY: prctl and getppid on this process.
+        unsafe {
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
+            // The server may have died before the signal was armed.
+            if libc::getppid() as u32 != parent {
+                return ExitCode::from(3);
+            }
+        }
+    }
     crate::pipeline::init_native();
     let params: JobParams = match serde_json::from_str(&args.params) {
         Ok(p) => p,

@@ -213,6 +213,7 @@ impl Worker {
             Ok(c) => c,
             Err(e) => return fail("internal", format!("cannot start a worker process: {e}")),
         };
+        tracing::debug!(pid = child.pid(), "worker process started");
         let mut megapixels = 0.0;
         let mut permit = None;
         loop {
@@ -231,6 +232,7 @@ impl Worker {
                 }
                 Err(()) => break,
             };
+            tracing::debug!(%line, "from the worker process");
             match ChildLine::parse(&line) {
                 Some(ChildLine::Header {
                     width,

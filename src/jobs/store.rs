@@ -28,6 +28,27 @@ pub enum StoreError {
     Db(#[from] rusqlite::Error),
     #[error("job store: bad record: {0}")]
     Corrupt(String),
+    /// Another request with the same Idempotency-Key committed first.
+    #[error("job store: idempotency key already used")]
+    KeyTaken,
+}
+
+/// A client's `Idempotency-Key` and the request it came with.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct IdemKey {
+    /// The key, scoped to the client's credentials.
+    pub key: String,
+    /// Method, route and query of the request, to refuse a key reused for
+    /// another request.
+    pub request: String,
+}
+
+/// What the first request with a key created.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct IdemRecord {
+    pub request: String,
+    pub flight: FlightId,
+    pub jobs: Vec<JobId>,
 }
 
 /// A job to create: a frame already in the spool.
@@ -136,6 +157,13 @@ CREATE TABLE IF NOT EXISTS jobs (
     targets INTEGER
 );
 CREATE INDEX IF NOT EXISTS jobs_flight ON jobs(flight_id);
+CREATE TABLE IF NOT EXISTS idempotency (
+    key TEXT PRIMARY KEY,
+    request TEXT NOT NULL,
+    flight_id TEXT NOT NULL REFERENCES flights(id) ON DELETE CASCADE,
+    job_ids TEXT NOT NULL,
+    created_at INTEGER NOT NULL
+);
 ";
 
 /// Columns added after the first release: (table, column, type). Opening
@@ -226,6 +254,7 @@ impl Store {
         params: &JobParams,
         jobs: &[NewJob],
         export_to: Option<String>,
+        idem: Option<&IdemKey>,
     ) -> Result<FlightRecord, StoreError> {
         let flight = FlightRecord {
             id: uuid::Uuid::now_v7(),
@@ -253,6 +282,7 @@ impl Store {
             ],
         )?;
         let records = insert_jobs(&tx, flight.id, jobs)?;
+        insert_idem(&tx, idem, flight.id, &records)?;
         tx.commit()?;
         let mut state = self.state();
         state.flights.insert(flight.id, flight.clone());
@@ -269,6 +299,7 @@ impl Store {
         &self,
         flight: FlightId,
         jobs: &[NewJob],
+        idem: Option<&IdemKey>,
     ) -> Result<Option<Vec<JobRecord>>, StoreError> {
         let mut db = self.db();
         if !self.state().flights.contains_key(&flight) {
@@ -276,6 +307,7 @@ impl Store {
         }
         let tx = db.transaction()?;
         let records = insert_jobs(&tx, flight, jobs)?;
+        insert_idem(&tx, idem, flight, &records)?;
         // New frames mean new results: write them again at the end.
         tx.execute(
             "UPDATE flights SET export_state = 'pending', export_attempts = 0, export_error = NULL
@@ -319,6 +351,34 @@ impl Store {
         let state = self.state();
         let ids = state.flight_jobs.get(&id)?;
         Some(ids.iter().map(|j| state.jobs[j].clone()).collect())
+    }
+
+    /// What the first request with `key` created, if one did.
+    pub fn idempotent(&self, key: &str) -> Result<Option<IdemRecord>, StoreError> {
+        let db = self.db();
+        let row = db.query_row(
+            "SELECT request, flight_id, job_ids FROM idempotency WHERE key = ?1",
+            params![key],
+            |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, String>(1)?,
+                    r.get::<_, String>(2)?,
+                ))
+            },
+        );
+        let (request, flight, jobs) = match row {
+            Ok(row) => row,
+            Err(rusqlite::Error::QueryReturnedNoRows) => return Ok(None),
+            Err(e) => return Err(e.into()),
+        };
+        let ids: Vec<String> = serde_json::from_str(&jobs)
+            .map_err(|e| StoreError::Corrupt(format!("idempotency job ids: {e}")))?;
+        Ok(Some(IdemRecord {
+            request,
+            flight: parse_id(&flight)?,
+            jobs: ids.iter().map(|i| parse_id(i)).collect::<Result<_, _>>()?,
+        }))
     }
 
     /// Flights, oldest first, after the cursor.
@@ -724,6 +784,33 @@ impl Store {
     }
 }
 
+/// Records an idempotency key with what its request created; a key taken
+/// by a request that committed first is [`StoreError::KeyTaken`].
+fn insert_idem(
+    tx: &rusqlite::Transaction<'_>,
+    idem: Option<&IdemKey>,
+    flight: FlightId,
+    jobs: &[JobRecord],
+) -> Result<(), StoreError> {
+    let Some(idem) = idem else { return Ok(()) };
+    let ids: Vec<String> = jobs.iter().map(|j| j.id.to_string()).collect();
+    let inserted = tx.execute(
+        "INSERT INTO idempotency (key, request, flight_id, job_ids, created_at)
+         VALUES (?1, ?2, ?3, ?4, ?5) ON CONFLICT (key) DO NOTHING",
+        params![
+            idem.key,
+            idem.request,
+            flight.to_string(),
+            serde_json::to_string(&ids).expect("ids serialize"),
+            now_millis()
+        ],
+    )?;
+    if inserted == 0 {
+        return Err(StoreError::KeyTaken);
+    }
+    Ok(())
+}
+
 fn insert_jobs(
     tx: &rusqlite::Transaction<'_>,
     flight: FlightId,
@@ -957,6 +1044,7 @@ mod tests {
                 &JobParams::default(),
                 &[a.clone(), b.clone()],
                 Some("s3://b/out/".into()),
+                None,
             )
             .unwrap();
         assert_eq!(store.stats().fetching, 2);

@@ -143,3 +143,83 @@ fn a_dying_worker_costs_a_retry_and_three_deaths_fail_the_job() {
     let paths: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
     assert_eq!(csv, cli_output(&paths, "csv"));
 }
+
+#[test]
+fn an_idempotency_key_makes_a_retried_upload_create_nothing_new() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(&dir.path().join("d"), &[]);
+    let post = |path: &str, key: &str| {
+        let mut form = reqwest::blocking::multipart::Form::new();
+        for f in &frames[..2] {
+            form = form.file("frame", f).unwrap();
+        }
+        server
+            .client
+            .post(server.url(path))
+            .header("Idempotency-Key", key)
+            .multipart(form)
+            .send()
+            .unwrap()
+    };
+    let path = format!("/v1/flights?crs={CRS}");
+    let first = post(&path, "flight-2026-11-22-a");
+    assert_eq!(first.status(), 201);
+    assert!(first.headers().get("idempotent-replayed").is_none());
+    let first: Value = first.json().unwrap();
+    let again = post(&path, "flight-2026-11-22-a");
+    assert_eq!(again.status(), 201);
+    assert_eq!(again.headers()["idempotent-replayed"], "true");
+    let again: Value = again.json().unwrap();
+    assert_eq!(again["flight"]["id"], first["flight"]["id"]);
+    let ids = |v: &Value| -> Vec<String> {
+        v["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| j["id"].to_string())
+            .collect()
+    };
+    assert_eq!(ids(&again), ids(&first));
+
+    // Concurrent retries of a new key: one flight between them.
+    let answers: Vec<Value> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..4)
+            .map(|_| s.spawn(|| post(&path, "flight-2026-11-22-b").json::<Value>().unwrap()))
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for a in &answers {
+        assert_eq!(a["flight"]["id"], answers[0]["flight"]["id"], "{a}");
+    }
+    let flights = server.get_json("/v1/flights");
+    assert_eq!(flights["items"].as_array().unwrap().len(), 2, "{flights}");
+
+    // The key belongs to its request; a malformed key is refused.
+    crate::server::problem(
+        post("/v1/flights?crs=EPSG:4326", "flight-2026-11-22-a"),
+        422,
+        "idempotency_key_reused",
+    );
+    crate::server::problem(post(&path, "two words"), 400, "invalid_idempotency_key");
+    // Single frames too.
+    let job = |key: &str| {
+        server
+            .client
+            .post(server.url("/v1/jobs?name=a.tif"))
+            .header("Idempotency-Key", key)
+            .body(std::fs::read(&frames[0]).unwrap())
+            .send()
+            .unwrap()
+            .json::<Value>()
+            .unwrap()
+    };
+    assert_eq!(job("job-1")["id"], job("job-1")["id"]);
+    assert_eq!(
+        server.get_json("/v1/jobs")["items"]
+            .as_array()
+            .unwrap()
+            .len(),
+        4 + 1
+    );
+}

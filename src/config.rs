@@ -56,6 +56,15 @@ pub struct ServeArgs {
     /// On SIGTERM/SIGINT, seconds running jobs get to finish before they are stopped and left queued.
     #[arg(long, env = "GCP_TAGGER_SHUTDOWN_GRACE_SECS", default_value_t = 30)]
     pub shutdown_grace_secs: u64,
+    /// Most pixels a frame's header may claim, in megapixels (checked before decoding).
+    #[arg(long, env = "GCP_TAGGER_MAX_FRAME_MP", default_value_t = 400)]
+    pub max_frame_mp: u64,
+    /// Longest side a frame's header may claim, in pixels.
+    #[arg(long, env = "GCP_TAGGER_MAX_FRAME_SIDE", default_value_t = 60000)]
+    pub max_frame_side: u32,
+    /// Uploads are refused with 507 while the data folder's disk has less free, in MiB; running work goes on.
+    #[arg(long, env = "GCP_TAGGER_MIN_FREE_DISK_MB", default_value_t = 1024)]
+    pub min_free_disk_mb: u64,
     /// S3-compatible endpoint for s3:// sources (MinIO, Ceph), e.g. http://127.0.0.1:9000 (default: AWS_ENDPOINT_URL, else AWS).
     #[arg(long, env = "GCP_TAGGER_S3_ENDPOINT")]
     pub s3_endpoint: Option<String>,

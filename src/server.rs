@@ -17,6 +17,7 @@ use crate::api::{self, AppState, HttpConfig, UploadLimits};
 use crate::config::ServeArgs;
 use crate::jobs::fetch::{self, FetchConfig};
 use crate::jobs::{export, PoolConfig, Store, WorkerPool};
+use crate::storage::header::PixelLimits;
 use crate::storage::s3::S3;
 use crate::storage::DataDir;
 use crate::telemetry::Metrics;
@@ -53,6 +54,10 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
             concurrency: args.s3_concurrency,
             read_ahead: args.s3_read_ahead,
             max_frame_bytes: args.max_frame_mb << 20,
+            pixels: PixelLimits {
+                max_pixels: args.max_frame_mp * 1_000_000,
+                max_side: args.max_frame_side,
+            },
         },
         shutdown_rx.clone(),
     ));
@@ -69,6 +74,11 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
         budget: pool.budget().clone(),
         limits: UploadLimits {
             max_frame_bytes: args.max_frame_mb << 20,
+            pixels: PixelLimits {
+                max_pixels: args.max_frame_mp * 1_000_000,
+                max_side: args.max_frame_side,
+            },
+            min_free_bytes: args.min_free_disk_mb << 20,
             max_request_bytes: args.max_request_mb << 20,
             max_frames_per_request: args.max_frames_per_request,
         },

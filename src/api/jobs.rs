@@ -107,15 +107,11 @@ async fn submit_job_inner(
     let (params, extras) = checked_params(query.as_deref(), &["name"]).await?;
     let upload = upload::receive(&state, req, Expect::One, extras.name).await?;
     if let Some(Err(e)) = upload.parts.first().map(|p| &p.content) {
-        let status = if e.code == "empty_frame" {
-            StatusCode::BAD_REQUEST
-        } else {
-            StatusCode::UNSUPPORTED_MEDIA_TYPE
-        };
-        let code = if e.code == "empty_frame" {
-            "empty_frame"
-        } else {
-            "not_an_image"
+        let (status, code) = match e.code.as_str() {
+            "empty_frame" => (StatusCode::BAD_REQUEST, "empty_frame"),
+            "frame_too_large" => (StatusCode::PAYLOAD_TOO_LARGE, "frame_too_large"),
+            "unreadable_frame" => (StatusCode::UNPROCESSABLE_ENTITY, "unreadable_frame"),
+            _ => (StatusCode::UNSUPPORTED_MEDIA_TYPE, "not_an_image"),
         };
         return Err(ApiError::new(status, code, e.message.clone()));
     }

@@ -64,6 +64,7 @@ pub async fn receive(
     req: Request,
     allow_results_to: bool,
 ) -> Result<Sourced, ApiError> {
+    upload::check_free_space(state).await?;
     let body = axum::body::to_bytes(req.into_body(), MAX_BODY_BYTES)
         .await
         .map_err(|_| {

@@ -15,6 +15,7 @@ use super::error::ApiError;
 use super::AppState;
 use crate::jobs::model::JobError;
 use crate::jobs::{FlightId, FlightRecord, IdemKey, JobParams, JobRecord, NewJob};
+use crate::storage::header::{self as frame_header, PixelLimits};
 use crate::storage::spool::{magic_hex, sanitize_name, sniff_image};
 use crate::storage::DataDir;
 
@@ -22,6 +23,10 @@ use crate::storage::DataDir;
 #[derive(Debug, Clone)]
 pub struct UploadLimits {
     pub max_frame_bytes: u64,
+    /// What a frame's header may claim.
+    pub pixels: PixelLimits,
+    /// Uploads are refused (507) while the data folder has less free.
+    pub min_free_bytes: u64,
     pub max_request_bytes: u64,
     pub max_frames_per_request: usize,
 }
@@ -72,6 +77,10 @@ pub async fn receive(
         if len > limits.max_request_bytes {
             return Err(request_too_large(limits));
         }
+    }
+    if let Err(e) = check_free_space(state).await {
+        drain(&mut req.into_body().into_data_stream()).await;
+        return Err(e);
     }
     let content_type = req
         .headers()
@@ -218,14 +227,10 @@ async fn spool_stream(
             let take = (16 - head.len()).min(chunk.len());
             head.extend_from_slice(&chunk[..take]);
         }
-        file.write_all(&chunk)
-            .await
-            .map_err(|e| ApiError::internal("cannot write to the spool", e))?;
+        file.write_all(&chunk).await.map_err(spool_error)?;
     }
     // Durable before the client hears "created".
-    file.sync_all()
-        .await
-        .map_err(|e| ApiError::internal("cannot write to the spool", e))?;
+    file.sync_all().await.map_err(spool_error)?;
     drop(file);
     let content = if bytes == 0 {
         Err(JobError {
@@ -234,7 +239,34 @@ async fn spool_stream(
         })
     } else {
         match sniff_image(&head) {
-            Some(ext) => Ok((guard.0.take().expect("path kept"), ext)),
+            Some(ext) => {
+                let (spooled, pixels) = (path.clone(), limits.pixels);
+                let claimed =
+                    tokio::task::spawn_blocking(move || frame_header::dimensions(&spooled))
+                        .await
+                        .map_err(|e| ApiError::internal("reading a frame header", e))?;
+                match claimed {
+                    Err(e) => Err(JobError {
+                        code: "unreadable_frame".into(),
+                        message: format!("{image}: unreadable header: {e}"),
+                    }),
+                    Ok((w, h))
+                        if w > pixels.max_side
+                            || h > pixels.max_side
+                            || w as u64 * h as u64 > pixels.max_pixels =>
+                    {
+                        Err(JobError {
+                            code: "frame_too_large".into(),
+                            message: format!(
+                                "{image}: the header claims {w} x {h} pixels; the limits are {} px a side and {} MP",
+                                pixels.max_side,
+                                pixels.max_pixels / 1_000_000
+                            ),
+                        })
+                    }
+                    Ok(_) => Ok((guard.0.take().expect("path kept"), ext)),
+                }
+            }
             None => Err(JobError {
                 code: "not_an_image".into(),
                 message: format!(
@@ -249,6 +281,42 @@ async fn spool_stream(
         bytes,
         content,
     })
+}
+
+/// A spool write that failed: a full disk is the client's 507, anything
+/// else ours.
+fn spool_error(e: std::io::Error) -> ApiError {
+    if e.raw_os_error() == Some(libc::ENOSPC) {
+        insufficient_storage("the data folder's disk filled up during the upload")
+    } else {
+        ApiError::internal("cannot write to the spool", e)
+    }
+}
+
+pub fn insufficient_storage(why: &str) -> ApiError {
+    ApiError::new(
+        StatusCode::INSUFFICIENT_STORAGE,
+        "insufficient_storage",
+        format!("{why}; running jobs go on, try again once space is freed"),
+    )
+    .with_header(axum::http::header::RETRY_AFTER, "60")
+}
+
+/// Refuses uploads while the data folder has less than the minimum free.
+pub async fn check_free_space(state: &AppState) -> Result<(), ApiError> {
+    let data = state.data.clone();
+    let free = tokio::task::spawn_blocking(move || data.free_bytes())
+        .await
+        .map_err(|e| ApiError::internal("checking free disk space", e))?
+        .map_err(|e| ApiError::internal("checking free disk space", e))?;
+    if free < state.limits.min_free_bytes {
+        return Err(insufficient_storage(&format!(
+            "the data folder has {} MiB free, less than the {} MiB kept in reserve",
+            free >> 20,
+            state.limits.min_free_bytes >> 20
+        )));
+    }
+    Ok(())
 }
 
 /// After refusing an upload, this much more of the body is read and thrown

@@ -16,6 +16,7 @@ use tokio::sync::watch;
 use tokio::task::JoinSet;
 use tracing::Instrument;
 
+use crate::storage::header::{self, PixelLimits};
 use crate::storage::s3::{ObjectRef, S3Url, S3};
 use crate::storage::spool::{magic_hex, sniff_image};
 use crate::storage::DataDir;
@@ -31,6 +32,7 @@ pub struct FetchConfig {
     /// Fetched frames waiting for a worker, at most.
     pub read_ahead: usize,
     pub max_frame_bytes: u64,
+    pub pixels: PixelLimits,
 }
 
 /// Runs until `stop` turns true.
@@ -66,6 +68,7 @@ pub async fn run(
                     data: data.clone(),
                     s3: s3.clone(),
                     max_frame_bytes: config.max_frame_bytes,
+                    pixels: config.pixels,
                 };
                 running.spawn(
                     async move {
@@ -99,6 +102,7 @@ struct FetchTask {
     data: DataDir,
     s3: Arc<S3>,
     max_frame_bytes: u64,
+    pixels: PixelLimits,
 }
 
 impl FetchTask {
@@ -193,6 +197,19 @@ impl FetchTask {
                     magic_hex(&head)
                 ),
             )
+        })?;
+        // The header's claims, before any image library reads the frame.
+        let (path, pixels) = (tmp.to_path_buf(), self.pixels);
+        let checked = tokio::task::spawn_blocking(move || header::check(&path, pixels))
+            .await
+            .map_err(|e| error("internal", e.to_string()))?;
+        checked.map_err(|e| {
+            let code = if e.contains("the limits are") {
+                "frame_too_large"
+            } else {
+                "unreadable_frame"
+            };
+            error(code, format!("{source}: {e}"))
         })?;
         Ok((ext, bytes))
     }

@@ -1,5 +1,6 @@
 //! Files on disk: the data folder's layout and the upload spool.
 
+pub mod header;
 pub mod s3;
 pub mod spool;
 

@@ -52,6 +52,19 @@ impl DataDir {
         self.root.join("results").join(format!("{job}.json"))
     }
 
+    /// Bytes free for unprivileged writers on the data folder's filesystem.
+    pub fn free_bytes(&self) -> io::Result<u64> {
+        use std::os::unix::ffi::OsStrExt;
+        let path = std::ffi::CString::new(self.root.as_os_str().as_bytes())
+            .map_err(|_| io::Error::from(io::ErrorKind::InvalidInput))?;
+        let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+        // SAFETY: statvfs fills `st` for a NUL-terminated path.
+        if unsafe { libc::statvfs(path.as_ptr(), &mut st) } != 0 {
+            return Err(io::Error::last_os_error());
+        }
+        Ok(st.f_bavail as u64 * st.f_frsize as u64)
+    }
+
     /// A flight's survey of ground control points.
     pub fn survey_path(&self, flight: Uuid) -> PathBuf {
         self.root.join("surveys").join(format!("{flight}.json"))

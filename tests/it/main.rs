@@ -8,6 +8,7 @@ mod cli;
 mod durability;
 mod gcp;
 mod georef;
+mod hostile;
 mod printed;
 mod s3;
 mod service;

@@ -1,0 +1,219 @@
+//! Frame dimensions read from the first bytes of a JPEG, PNG or TIFF
+//! without decoding anything, so a "decompression bomb" (a small file that
+//! claims 100000 x 100000 pixels) is refused in milliseconds, in the server
+//! process, before any image library sees it. Reads are bounded: at most a
+//! few kilobytes from known offsets.
+
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::Path;
+
+/// Limits on what a frame may claim.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PixelLimits {
+    pub max_pixels: u64,
+    pub max_side: u32,
+}
+
+/// A frame's claimed size, or why it cannot be read.
+pub fn dimensions(path: &Path) -> Result<(u32, u32), String> {
+    let mut f = File::open(path).map_err(|e| e.to_string())?;
+    let mut head = [0u8; 32];
+    let n = read_up_to(&mut f, &mut head)?;
+    let head = &head[..n];
+    if head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        if n < 24 || &head[12..16] != b"IHDR" {
+            return Err("PNG without an IHDR header".into());
+        }
+        let w = u32::from_be_bytes(head[16..20].try_into().expect("4 bytes"));
+        let h = u32::from_be_bytes(head[20..24].try_into().expect("4 bytes"));
+        return Ok((w, h));
+    }
+    if head.starts_with(&[0xFF, 0xD8]) {
+        return jpeg(&mut f);
+    }
+    if head.starts_with(b"II") || head.starts_with(b"MM") {
+        return tiff(&mut f, head);
+    }
+    Err("not a JPEG, PNG or TIFF".into())
+}
+
+/// Checks a frame's claimed size against `limits`; the error names both.
+pub fn check(path: &Path, limits: PixelLimits) -> Result<(u32, u32), String> {
+    let (w, h) = dimensions(path)?;
+    let pixels = w as u64 * h as u64;
+    if w > limits.max_side || h > limits.max_side || pixels > limits.max_pixels {
+        return Err(format!(
+            "the frame claims {w} x {h} pixels ({:.0} MP); the limits are {} px a side and {:.0} MP",
+            pixels as f64 / 1e6,
+            limits.max_side,
+            limits.max_pixels as f64 / 1e6
+        ));
+    }
+    Ok((w, h))
+}
+
+fn read_up_to(f: &mut File, buf: &mut [u8]) -> Result<usize, String> {
+    let mut n = 0;
+    while n < buf.len() {
+        match f.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) => return Err(e.to_string()),
+        }
+    }
+    Ok(n)
+}
+
+fn read_exact_at(f: &mut File, at: u64, buf: &mut [u8]) -> Result<(), String> {
+    f.seek(SeekFrom::Start(at)).map_err(|e| e.to_string())?;
+    f.read_exact(buf)
+        .map_err(|_| "the header is cut short".to_string())
+}
+
+/// Walks JPEG segments to the first start-of-frame marker (at most 64
+/// segments, so a file of empty segments cannot keep us reading).
+fn jpeg(f: &mut File) -> Result<(u32, u32), String> {
+    let mut at = 2u64;
+    for _ in 0..64 {
+        let mut m = [0u8; 4];
+        read_exact_at(f, at, &mut m)?;
+        if m[0] != 0xFF {
+            return Err("broken JPEG marker".into());
+        }
+        let marker = m[1];
+        let len = u16::from_be_bytes([m[2], m[3]]) as u64;
+        let is_sof = (0xC0..=0xCF).contains(&marker) && ![0xC4, 0xC8, 0xCC].contains(&marker);
+        if is_sof {
+            let mut sof = [0u8; 5];
+            read_exact_at(f, at + 4, &mut sof)?;
+            let h = u16::from_be_bytes([sof[1], sof[2]]) as u32;
+            let w = u16::from_be_bytes([sof[3], sof[4]]) as u32;
+            return Ok((w, h));
+        }
+        if len < 2 {
+            return Err("broken JPEG segment".into());
+        }
+        at += 2 + len;
+    }
+    Err("no JPEG frame header in the first 64 segments".into())
+}
+
+/// ImageWidth (256) and ImageLength (257) of a TIFF's or BigTIFF's first IFD.
+fn tiff(f: &mut File, head: &[u8]) -> Result<(u32, u32), String> {
+    if head.len() < 16 {
+        return Err("the TIFF header is cut short".into());
+    }
+    let le = head[0] == b'I';
+    let u16_at = |b: &[u8]| {
+        let a = [b[0], b[1]];
+        if le {
+            u16::from_le_bytes(a)
+        } else {
+            u16::from_be_bytes(a)
+        }
+    };
+    let u32_at = |b: &[u8]| {
+        let a = [b[0], b[1], b[2], b[3]];
+        if le {
+            u32::from_le_bytes(a)
+        } else {
+            u32::from_be_bytes(a)
+        }
+    };
+    let u64_at = |b: &[u8]| {
+        let a: [u8; 8] = b[..8].try_into().expect("8 bytes");
+        if le {
+            u64::from_le_bytes(a)
+        } else {
+            u64::from_be_bytes(a)
+        }
+    };
+    let big = match u16_at(&head[2..4]) {
+        42 => false,
+        43 => true,
+        _ => return Err("not a TIFF".into()),
+    };
+    let (ifd, count_len, entry_len) = if big {
+        (u64_at(&head[8..16]), 8u64, 20u64)
+    } else {
+        (u32_at(&head[4..8]) as u64, 2, 12)
+    };
+    let mut count = [0u8; 8];
+    read_exact_at(f, ifd, &mut count[..count_len as usize])?;
+    let entries = if big {
+        u64_at(&count)
+    } else {
+        u16_at(&count) as u64
+    }
+    .min(4096);
+    let mut table = vec![0u8; (entries * entry_len) as usize];
+    read_exact_at(f, ifd + count_len, &mut table)?;
+    let (mut w, mut h) = (None, None);
+    for e in table.chunks(entry_len as usize) {
+        let tag = u16_at(&e[0..2]);
+        let kind = u16_at(&e[2..4]);
+        let value = if big { &e[12..20] } else { &e[8..12] };
+        let v = match kind {
+            3 => u16_at(value) as u64,
+            4 => u32_at(value) as u64,
+            16 => u64_at(value),
+            _ => continue,
+        };
+        let v = u32::try_from(v).unwrap_or(u32::MAX);
+        match tag {
+            256 => w = Some(v),
+            257 => h = Some(v),
+            _ => {}
+        }
+    }
+    match (w, h) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err("the TIFF's first image has no width or height".into()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn file(bytes: &[u8]) -> tempfile::NamedTempFile {
+        let mut f = tempfile::NamedTempFile::new().unwrap();
+        std::io::Write::write_all(&mut f, bytes).unwrap();
+        f
+    }
+
+    #[test]
+    fn sizes_come_from_headers_and_bombs_are_refused() {
+        let mut png = b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR".to_vec();
+        png.extend_from_slice(&100_000u32.to_be_bytes());
+        png.extend_from_slice(&100_000u32.to_be_bytes());
+        let f = file(&png);
+        assert_eq!(dimensions(f.path()), Ok((100_000, 100_000)));
+        let limits = PixelLimits {
+            max_pixels: 400_000_000,
+            max_side: 60_000,
+        };
+        let e = check(f.path(), limits).unwrap_err();
+        assert!(e.contains("100000 x 100000"), "{e}");
+
+        // JPEG: APP0 then SOF0 with 3000 rows of 4000 columns.
+        let jpg = [
+            &[0xFF, 0xD8, 0xFF, 0xE0, 0, 4, 0, 0][..],
+            &[0xFF, 0xC0, 0, 11, 8, 0x0B, 0xB8, 0x0F, 0xA0, 3][..],
+        ]
+        .concat();
+        assert_eq!(dimensions(file(&jpg).path()), Ok((4000, 3000)));
+
+        // Little-endian TIFF with ImageWidth (SHORT) and ImageLength (LONG).
+        let mut tif = b"II*\0\x08\0\0\0".to_vec();
+        tif.extend_from_slice(&2u16.to_le_bytes());
+        tif.extend_from_slice(&[0, 1, 3, 0, 1, 0, 0, 0, 0x40, 0x1F, 0, 0]);
+        tif.extend_from_slice(&[1, 1, 4, 0, 1, 0, 0, 0, 0x70, 0x17, 0, 0]);
+        assert_eq!(dimensions(file(&tif).path()), Ok((8000, 6000)));
+
+        assert!(dimensions(file(b"II*\0\xff\xff\0\0").path()).is_err());
+        assert!(dimensions(file(&[0xFF, 0xD8, 0xFF]).path()).is_err());
+        assert!(dimensions(file(b"hello").path()).is_err());
+    }
+}

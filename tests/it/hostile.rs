@@ -1,0 +1,165 @@
+//! Hostile and broken input: every bad file of a flight fails its own job
+//! with a clear code while the good frames and the server go on; a
+//! decompression bomb is refused from its header at submission.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+use gcp_tagger::synth::{write_image, GreyImage, SampleFormat};
+use serde_json::Value;
+
+use crate::server::{problem, Server};
+use crate::service::{cli_output, flight, CRS};
+
+/// A PNG header claiming 100000 x 100000 pixels, then nothing.
+fn bomb() -> Vec<u8> {
+    let mut png = b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR".to_vec();
+    png.extend_from_slice(&100_000u32.to_be_bytes());
+    png.extend_from_slice(&100_000u32.to_be_bytes());
+    png.extend_from_slice(&[8, 2, 0, 0, 0, 0, 0, 0, 0]);
+    png
+}
+
+#[test]
+fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let grey = GreyImage {
+        width: 800,
+        height: 600,
+        data: (0..800 * 600).map(|i| (i % 251) as f32).collect(),
+    };
+    write_image(&d.join("real.jpg"), &grey, SampleFormat::Jpeg, None).unwrap();
+    let jpeg = std::fs::read(d.join("real.jpg")).unwrap();
+    std::fs::write(d.join("truncated.jpg"), &jpeg[..jpeg.len() / 3]).unwrap();
+    std::fs::write(d.join("empty.jpg"), b"").unwrap();
+    std::fs::write(d.join("notes.jpg"), b"field notes: GCP 4 moved").unwrap();
+    std::fs::write(d.join("bomb.png"), bomb()).unwrap();
+    std::fs::write(d.join("corrupt.tif"), b"II*\0\xff\xff\xff\x0fjunk").unwrap();
+    std::fs::write(
+        d.join("vrt.tif"),
+        b"<VRTDataset rasterXSize=\"1\"></VRTDataset>",
+    )
+    .unwrap();
+    // A PNG named .tif: recognised by content and processed.
+    write_image(&d.join("png_named.tif"), &grey, SampleFormat::Png, None).unwrap();
+    // Unusual band counts are read, not refused: 5 bands of 16 bits.
+    let status = Command::new("gdal_create")
+        .args([
+            "-q", "-of", "GTiff", "-outsize", "400", "300", "-bands", "5", "-ot", "UInt16",
+            "-burn", "900",
+        ])
+        .arg(d.join("five_band.tif"))
+        .status()
+        .unwrap();
+    assert!(status.success());
+
+    let server = Server::start(&d.join("data"), &[]);
+    let names = [
+        "truncated.jpg",
+        "empty.jpg",
+        "notes.jpg",
+        "bomb.png",
+        "corrupt.tif",
+        "vrt.tif",
+        "png_named.tif",
+        "five_band.tif",
+    ];
+    let mut upload: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
+    let bad: Vec<std::path::PathBuf> = names.iter().map(|n| d.join(n)).collect();
+    upload.extend(bad.iter().map(|p| p.as_path()));
+    let started = Instant::now();
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
+    assert_eq!(r.status(), 201);
+    let v: Value = r.json().unwrap();
+    // The bomb is refused from its header at submission, before decoding.
+    let at_submission = |name: &str| {
+        v["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|j| j["image"] == name)
+            .unwrap()
+            .clone()
+    };
+    assert_eq!(at_submission("bomb.png")["state"], "failed");
+    assert_eq!(
+        at_submission("bomb.png")["error"]["code"],
+        "frame_too_large"
+    );
+    let message = at_submission("bomb.png")["error"]["message"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(message.contains("100000 x 100000"), "{message}");
+    assert!(started.elapsed().as_secs() < 10);
+
+    let id = v["flight"]["id"].as_str().unwrap();
+    server.wait_flight(id);
+    let jobs = server.get_json(&format!("/v1/flights/{id}/jobs"));
+    let state = |name: &str| {
+        let j = jobs["items"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|j| j["image"] == name)
+            .unwrap();
+        (
+            j["state"].as_str().unwrap().to_string(),
+            j["error"]["code"].as_str().unwrap_or("").to_string(),
+        )
+    };
+    let expected = [
+        ("truncated.jpg", "failed", "unreadable_frame"),
+        ("empty.jpg", "failed", "empty_frame"),
+        ("notes.jpg", "failed", "not_an_image"),
+        ("bomb.png", "failed", "frame_too_large"),
+        ("corrupt.tif", "failed", "unreadable_frame"),
+        ("vrt.tif", "failed", "not_an_image"),
+        ("png_named.tif", "succeeded", ""),
+        ("five_band.tif", "succeeded", ""),
+    ];
+    for (name, st, code) in expected {
+        assert_eq!(state(name), (st.to_string(), code.to_string()), "{name}");
+    }
+    // The good frames' results are whole and the server is up.
+    let csv = server.get_text(&format!("/v1/flights/{id}/results.csv"));
+    let good: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
+    // The other good files have no targets: the same bytes as the CLI's.
+    assert_eq!(csv, cli_output(&good, "csv"));
+    assert_eq!(server.get("/livez").status(), 200);
+
+    // Alone, the bomb is a 413 at once.
+    let r = server
+        .client
+        .post(server.url("/v1/jobs?name=bomb.png"))
+        .body(bomb())
+        .send()
+        .unwrap();
+    problem(r, 413, "frame_too_large");
+    // A path-like name never reaches the filesystem or GDAL.
+    let r = server
+        .client
+        .post(server.url("/v1/jobs?name=/vsicurl/http://example.com/x.tif"))
+        .body(std::fs::read(&frames[0]).unwrap())
+        .send()
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    assert_eq!(r.json::<Value>().unwrap()["image"], "x.tif");
+}
+
+#[test]
+fn uploads_are_refused_with_507_when_the_disk_is_short() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    // A reserve larger than any disk here: every upload is refused, while
+    // reads go on.
+    let server = Server::start(&dir.path().join("d"), &["--min-free-disk-mb", "999999999"]);
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &[frames[0].as_path()]);
+    let v = problem(r, 507, "insufficient_storage");
+    assert!(v["detail"].as_str().unwrap().contains("MiB free"), "{v}");
+    assert_eq!(server.get("/v1/flights").status(), 200);
+    assert_eq!(server.get("/livez").status(), 200);
+}

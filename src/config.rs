@@ -56,6 +56,12 @@ pub struct ServeArgs {
     /// On SIGTERM/SIGINT, seconds running jobs get to finish before they are stopped and left queued.
     #[arg(long, env = "GCP_TAGGER_SHUTDOWN_GRACE_SECS", default_value_t = 30)]
     pub shutdown_grace_secs: u64,
+    /// Finished flights (records, frames, results) are removed this many hours after their last job ended; 0 keeps them forever.
+    #[arg(long, env = "GCP_TAGGER_RETENTION_HOURS", default_value_t = 168.0)]
+    pub retention_hours: f64,
+    /// Requests per minute one client (API key, else IP address) may make; 0 turns the limit off.
+    #[arg(long, env = "GCP_TAGGER_RATE_LIMIT_PER_MINUTE", default_value_t = 1200)]
+    pub rate_limit_per_minute: u32,
     /// Most pixels a frame's header may claim, in megapixels (checked before decoding).
     #[arg(long, env = "GCP_TAGGER_MAX_FRAME_MP", default_value_t = 400)]
     pub max_frame_mp: u64,
@@ -146,6 +152,12 @@ impl ServeArgs {
             return Err(ConfigError(
                 "--max-frame-mb must be positive and at most --max-request-mb".into(),
             ));
+        }
+        if !(self.retention_hours.is_finite() && self.retention_hours >= 0.0) {
+            return Err(ConfigError(format!(
+                "--retention-hours must be 0 or positive, got {}",
+                self.retention_hours
+            )));
         }
         if self.s3_concurrency == 0 || self.s3_read_ahead == 0 || self.s3_timeout_secs == 0 {
             return Err(ConfigError(

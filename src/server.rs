@@ -16,7 +16,7 @@ use tokio::time::Instant;
 use crate::api::{self, AppState, HttpConfig, UploadLimits};
 use crate::config::ServeArgs;
 use crate::jobs::fetch::{self, FetchConfig};
-use crate::jobs::{export, PoolConfig, Store, WorkerPool};
+use crate::jobs::{export, retention, PoolConfig, Store, WorkerPool};
 use crate::storage::header::PixelLimits;
 use crate::storage::s3::S3;
 use crate::storage::DataDir;
@@ -61,6 +61,15 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
         },
         shutdown_rx.clone(),
     ));
+    if args.retention_hours > 0.0 {
+        let keep = Duration::from_secs_f64(args.retention_hours * 3600.0);
+        tokio::spawn(retention::run(
+            store.clone(),
+            data.clone(),
+            keep,
+            shutdown_rx.clone(),
+        ));
+    }
     let exporter = tokio::spawn(export::run(
         store.clone(),
         data.clone(),
@@ -91,6 +100,7 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
         &HttpConfig {
             api_keys: args.api_keys.iter().map(|k| k.trim().to_string()).collect(),
             cors_origins: args.cors_origins.clone(),
+            rate_limit_per_minute: args.rate_limit_per_minute,
         },
     );
     let listener = TcpListener::bind(args.listen)
@@ -105,11 +115,14 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
 
     let mut drained = shutdown_rx.clone();
     let mut server = tokio::spawn(
-        axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                let _ = drained.wait_for(|stop| *stop).await;
-            })
-            .into_future(),
+        axum::serve(
+            listener,
+            app.into_make_service_with_connect_info::<std::net::SocketAddr>(),
+        )
+        .with_graceful_shutdown(async move {
+            let _ = drained.wait_for(|stop| *stop).await;
+        })
+        .into_future(),
     );
     let signal = tokio::select! {
         s = wait_for_signal() => s,

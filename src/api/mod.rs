@@ -9,6 +9,7 @@ pub mod extract;
 pub mod flights;
 pub mod idempotency;
 pub mod jobs;
+pub mod limit;
 pub mod ops;
 pub mod results;
 pub mod sources;
@@ -66,6 +67,8 @@ pub struct HttpConfig {
     pub api_keys: Vec<String>,
     /// Origins allowed by CORS (`*` for any); empty means no CORS headers.
     pub cors_origins: Vec<String>,
+    /// Requests per minute per client; 0 means no limit.
+    pub rate_limit_per_minute: u32,
 }
 
 #[derive(OpenApi)]
@@ -151,6 +154,10 @@ pub fn router(state: AppState, config: &HttpConfig) -> Router {
         // Uploads enforce their own limits while streaming (see upload).
         .layer(DefaultBodyLimit::disable())
         .layer(middleware::from_fn_with_state(keys, require_api_key))
+        .layer(middleware::from_fn_with_state(
+            Arc::new(limit::RateLimiter::new(config.rate_limit_per_minute)),
+            limit_or_pass,
+        ))
         .layer(middleware::from_fn_with_state(state.clone(), record_metrics))
         .layer(
             TraceLayer::new_for_http().make_span_with(|req: &Request| {
@@ -194,12 +201,14 @@ fn cors_layer(origins: &[String]) -> Option<CorsLayer> {
                 header::CONTENT_TYPE,
                 header::ACCEPT,
                 header::CONTENT_DISPOSITION,
+                idempotency::HEADER,
             ])
             .expose_headers([
                 header::LOCATION,
                 header::RETRY_AFTER,
                 header::CONTENT_DISPOSITION,
                 HeaderName::from_static("x-request-id"),
+                HeaderName::from_static("idempotent-replayed"),
             ])
             .max_age(std::time::Duration::from_secs(600)),
     )
@@ -207,6 +216,17 @@ fn cors_layer(origins: &[String]) -> Option<CorsLayer> {
 
 /// Routes open without a key: probes must work without secrets.
 const OPEN_PATHS: &[&str] = &["/livez", "/readyz"];
+
+async fn limit_or_pass(
+    State(limiter): State<Arc<limit::RateLimiter>>,
+    req: Request,
+    next: Next,
+) -> Result<Response, ApiError> {
+    if limiter.is_off() {
+        return Ok(next.run(req).await);
+    }
+    limit::limit_rate(State(limiter), req, next).await
+}
 
 async fn require_api_key(
     State(keys): State<Arc<Vec<String>>>,

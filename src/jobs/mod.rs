@@ -10,6 +10,7 @@ pub mod model;
 pub mod params;
 pub mod pool;
 pub mod results;
+pub mod retention;
 pub mod store;
 
 pub use model::{FlightId, FlightRecord, FlightState, JobError, JobId, JobRecord, JobState};

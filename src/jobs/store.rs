@@ -353,6 +353,30 @@ impl Store {
         Some(ids.iter().map(|j| state.jobs[j].clone()).collect())
     }
 
+    /// Flights whose every job ended before `cutoff` (and whose export, if
+    /// any, is no longer pending): due for removal.
+    pub fn expired_flights(&self, cutoff: Millis) -> Vec<FlightId> {
+        let state = self.state();
+        state
+            .flights
+            .values()
+            .filter(|f| {
+                f.export
+                    .as_ref()
+                    .is_none_or(|e| e.state != ExportState::Pending)
+            })
+            .filter(|f| {
+                let jobs = &state.flight_jobs[&f.id];
+                let ended = jobs
+                    .iter()
+                    .map(|j| &state.jobs[j])
+                    .all(|j| j.state.is_terminal() && j.finished_at.is_some_and(|t| t < cutoff));
+                ended && (!jobs.is_empty() || f.created_at < cutoff)
+            })
+            .map(|f| f.id)
+            .collect()
+    }
+
     /// What the first request with `key` created, if one did.
     pub fn idempotent(&self, key: &str) -> Result<Option<IdemRecord>, StoreError> {
         let db = self.db();

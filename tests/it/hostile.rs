@@ -163,3 +163,56 @@ fn uploads_are_refused_with_507_when_the_disk_is_short() {
     assert_eq!(server.get("/v1/flights").status(), 200);
     assert_eq!(server.get("/livez").status(), 200);
 }
+
+#[test]
+fn clients_over_their_rate_get_429_and_probes_are_never_limited() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(&dir.path().join("d"), &["--rate-limit-per-minute", "5"]);
+    for _ in 0..5 {
+        assert_eq!(server.get("/v1/flights").status(), 200);
+    }
+    let r = server.get("/v1/flights");
+    let retry: u64 = r.headers()["retry-after"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((1..=60).contains(&retry), "{retry}");
+    problem(r, 429, "rate_limited");
+    assert_eq!(server.get("/livez").status(), 200);
+    // Another client (another key) has its own bucket.
+    let other = server
+        .client
+        .get(server.url("/v1/flights"))
+        .header("Authorization", "Bearer another-client-key")
+        .send()
+        .unwrap();
+    assert_eq!(other.status(), 200);
+}
+
+#[test]
+fn finished_flights_are_removed_after_the_retention_time() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("d");
+    // 0.0005 h = 1.8 s.
+    let server = Server::start(&data, &["--retention-hours", "0.0005"]);
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &[frames[0].as_path()]);
+    let id = r.json::<Value>().unwrap()["flight"]["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    server.wait_flight(&id);
+    let deadline = Instant::now() + std::time::Duration::from_secs(30);
+    while server.get(&format!("/v1/flights/{id}")).status() != 404 {
+        assert!(
+            Instant::now() < deadline,
+            "the flight outlived its retention"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    for sub in ["frames", "results"] {
+        let left = std::fs::read_dir(data.join(sub)).unwrap().count();
+        assert_eq!(left, 0, "{sub} left behind");
+    }
+}

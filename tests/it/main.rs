@@ -6,6 +6,7 @@ mod support;
 mod accuracy;
 mod cli;
 mod durability;
+mod fuzz;
 mod gcp;
 mod georef;
 mod hostile;

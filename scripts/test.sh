@@ -11,4 +11,5 @@ else
   echo "test: rustfmt not installed; skipping the format check (rustup component add rustfmt)" >&2
 fi
 cargo test --all-targets --locked "$@"
+bash scripts/schemathesis.sh
 bash scripts/lint-deploy.sh

@@ -344,6 +344,7 @@ fn flight_view(state: &AppState, id: Uuid) -> Option<FlightView> {
     get, path = "/v1/flights/{id}", tag = "flights",
     params(("id" = Uuid, Path, description = "Flight id"), WaitQuery),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "The flight", body = FlightView),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
     )
@@ -371,6 +372,7 @@ pub async fn get_flight(
     get, path = "/v1/flights/{id}/jobs", tag = "flights",
     params(("id" = Uuid, Path, description = "Flight id"), PageQuery),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "A page of the flight's jobs", body = JobPage),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
     )
@@ -406,7 +408,8 @@ pub async fn flight_jobs(
     get, path = "/v1/flights/{id}/events", tag = "flights",
     params(("id" = Uuid, Path, description = "Flight id")),
     responses(
-        (status = 200, description = "An event stream", content_type = "text/event-stream", body = String),
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
+        (status = 200, description = "An event stream", content_type = "text/event-stream", body = SseEvent),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
     )
 )]
@@ -458,8 +461,9 @@ async fn flight_results(
     get, path = "/v1/flights/{id}/results", tag = "results",
     params(("id" = Uuid, Path, description = "Flight id"), ResultsQuery),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "Targets", content(
-            (String = "text/csv"), (String = "application/geo+json"))),
+            (String = "text/csv"), (GeoJson = "application/geo+json"))),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
         (status = 406, description = "Neither CSV nor GeoJSON acceptable", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
@@ -480,6 +484,7 @@ pub async fn get_flight_results(
     get, path = "/v1/flights/{id}/results.csv", tag = "results",
     params(("id" = Uuid, Path, description = "Flight id"), ResultsQuery),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "Targets", content_type = "text/csv", body = String),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
@@ -498,7 +503,8 @@ pub async fn get_flight_results_csv(
     get, path = "/v1/flights/{id}/results.geojson", tag = "results",
     params(("id" = Uuid, Path, description = "Flight id"), ResultsQuery),
     responses(
-        (status = 200, description = "Targets", content_type = "application/geo+json", body = String),
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
+        (status = 200, description = "Targets", content_type = "application/geo+json", body = GeoJson),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
     )
@@ -516,6 +522,7 @@ pub async fn get_flight_results_geojson(
     post, path = "/v1/flights/{id}/cancel", tag = "flights",
     params(("id" = Uuid, Path, description = "Flight id")),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "The flight after the cancel", body = FlightView),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
     )
@@ -540,6 +547,7 @@ pub async fn cancel_flight(
     delete, path = "/v1/flights/{id}", tag = "flights",
     params(("id" = Uuid, Path, description = "Flight id")),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 204, description = "Deleted"),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
     )

@@ -171,6 +171,7 @@ fn page(mut items: Vec<JobView>, limit: usize) -> JobPage {
     get, path = "/v1/jobs/{id}", tag = "jobs",
     params(("id" = Uuid, Path, description = "Job id"), WaitQuery),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "The job", body = JobView),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
     )
@@ -201,7 +202,8 @@ pub async fn get_job(
     get, path = "/v1/jobs/{id}/events", tag = "jobs",
     params(("id" = Uuid, Path, description = "Job id")),
     responses(
-        (status = 200, description = "An event stream", content_type = "text/event-stream", body = String),
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
+        (status = 200, description = "An event stream", content_type = "text/event-stream", body = SseEvent),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
     )
 )]
@@ -254,8 +256,9 @@ async fn job_results(state: AppState, id: Uuid, format: Format) -> Result<Respon
     get, path = "/v1/jobs/{id}/results", tag = "results",
     params(("id" = Uuid, Path, description = "Job id")),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "Targets", content(
-            (String = "text/csv"), (String = "application/geo+json"))),
+            (String = "text/csv"), (GeoJson = "application/geo+json"))),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
         (status = 406, description = "Neither CSV nor GeoJSON acceptable", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "The job has not succeeded", body = Problem, content_type = "application/problem+json"),
@@ -275,6 +278,7 @@ pub async fn get_job_results(
     get, path = "/v1/jobs/{id}/results.csv", tag = "results",
     params(("id" = Uuid, Path, description = "Job id")),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "Targets", content_type = "text/csv", body = String),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "The job has not succeeded", body = Problem, content_type = "application/problem+json"),
@@ -292,7 +296,8 @@ pub async fn get_job_results_csv(
     get, path = "/v1/jobs/{id}/results.geojson", tag = "results",
     params(("id" = Uuid, Path, description = "Job id")),
     responses(
-        (status = 200, description = "Targets", content_type = "application/geo+json", body = String),
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
+        (status = 200, description = "Targets", content_type = "application/geo+json", body = GeoJson),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "The job has not succeeded", body = Problem, content_type = "application/problem+json"),
     )
@@ -311,6 +316,7 @@ pub async fn get_job_results_geojson(
     post, path = "/v1/jobs/{id}/cancel", tag = "jobs",
     params(("id" = Uuid, Path, description = "Job id")),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "The job after the cancel", body = JobView),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
     )
@@ -332,6 +338,7 @@ pub async fn cancel_job(
     delete, path = "/v1/jobs/{id}", tag = "jobs",
     params(("id" = Uuid, Path, description = "Job id")),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 204, description = "Deleted"),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
     )

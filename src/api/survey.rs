@@ -11,7 +11,7 @@ use uuid::Uuid;
 
 use super::error::{ApiError, Problem};
 use super::extract::{ApiQuery, IdPath};
-use super::views::ResultsQuery;
+use super::views::{GeoJson, ResultsQuery};
 use super::AppState;
 use crate::jobs::gcp::{self, StoredSurvey};
 use crate::survey::export::FILES;
@@ -126,6 +126,7 @@ pub async fn put_survey(
     get, path = "/v1/flights/{id}/survey", tag = "survey",
     params(("id" = Uuid, Path, description = "Flight id")),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "The survey", body = SurveySummary),
         (status = 404, description = "No such flight, or no survey", body = Problem, content_type = "application/problem+json"),
     )
@@ -170,9 +171,10 @@ async fn flight_survey(state: &AppState, id: Uuid) -> Result<Survey, ApiError> {
         ("file" = String, Path, description = "gcp_list.txt, pix4d_marks.csv, metashape_markers.xml, survey_points.geojson, observations.csv or report.json"),
         ResultsQuery),
     responses(
+        (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "The file", content(
             (String = "text/plain"), (String = "text/csv"), (String = "application/xml"),
-            (String = "application/geo+json"), (String = "application/json"))),
+            (GeoJson = "application/geo+json"), (GeoJson = "application/json"))),
         (status = 404, description = "No such flight, file, or no survey", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
     )

@@ -285,3 +285,19 @@ pub fn page_limit(limit: Option<usize>) -> Result<usize, super::error::ApiError>
         .with_field("limit")),
     }
 }
+
+/// A JSON document (GeoJSON FeatureCollection, or a report object).
+#[derive(utoipa::ToSchema)]
+#[schema(value_type = Object)]
+#[allow(dead_code)] // documents a response body
+pub struct GeoJson(serde_json::Value);
+
+/// One server-sent event: `event` names it (`job`, `flight`, `end`) and
+/// `data` carries the job's or flight's JSON.
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)] // documents a response body
+pub struct SseEvent {
+    event: String,
+    data: String,
+    id: Option<String>,
+}

@@ -38,6 +38,13 @@ pub struct ServeArgs {
         default_value_t = 2000
     )]
     pub max_frames_per_request: usize,
+    /// Most frames one flight may hold, across all its requests.
+    #[arg(
+        long,
+        env = "GCP_TAGGER_MAX_FRAMES_PER_FLIGHT",
+        default_value_t = 20000
+    )]
+    pub max_frames_per_flight: usize,
     /// Bearer API keys, comma separated; when set, every route but /livez and /readyz needs one.
     #[arg(
         long = "api-key",

@@ -90,6 +90,7 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
             min_free_bytes: args.min_free_disk_mb << 20,
             max_request_bytes: args.max_request_mb << 20,
             max_frames_per_request: args.max_frames_per_request,
+            max_frames_per_flight: args.max_frames_per_flight,
         },
         shutdown: shutdown_rx.clone(),
         ready: ready.clone(),

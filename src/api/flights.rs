@@ -146,14 +146,10 @@ async fn submit_flight_inner(
         };
         let upload = upload::receive(&state, req, Expect::Many, None).await?;
         let (store, data) = (state.store.clone(), state.data.clone());
+        let max = state.limits.max_frames_per_flight;
         let (flight, jobs) = tokio::task::spawn_blocking(move || {
-            upload::commit(
-                &store,
-                &data,
-                upload,
-                Target::NewFlight(params, results_to),
-                idem,
-            )
+            let target = Target::NewFlight(params, results_to);
+            upload::commit(&store, &data, upload, target, idem, max)
         })
         .await
         .map_err(|e| ApiError::internal("recording the flight", e))??;
@@ -274,8 +270,9 @@ async fn add_frames_inner(
     };
     let upload = upload::receive(&state, req, expect, name).await?;
     let (store, data) = (state.store.clone(), state.data.clone());
+    let max = state.limits.max_frames_per_flight;
     let (flight, jobs) = tokio::task::spawn_blocking(move || {
-        upload::commit(&store, &data, upload, Target::Flight(id), idem)
+        upload::commit(&store, &data, upload, Target::Flight(id), idem, max)
     })
     .await
     .map_err(|e| ApiError::internal("recording the frames", e))??;

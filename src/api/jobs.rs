@@ -117,7 +117,14 @@ async fn submit_job_inner(
     }
     let (store, data) = (state.store.clone(), state.data.clone());
     let (_, jobs) = tokio::task::spawn_blocking(move || {
-        upload::commit(&store, &data, upload, Target::NewFlight(params, None), idem)
+        upload::commit(
+            &store,
+            &data,
+            upload,
+            Target::NewFlight(params, None),
+            idem,
+            1,
+        )
     })
     .await
     .map_err(|e| ApiError::internal("recording the job", e))??;

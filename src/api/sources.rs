@@ -150,9 +150,10 @@ pub async fn commit(
     target: Target,
     idem: Option<IdemKey>,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
-    let store = state.store.clone();
+    let (store, max) = (state.store.clone(), state.limits.max_frames_per_flight);
     tokio::task::spawn_blocking(move || {
-        upload::check_names(&store, &target, jobs.iter().map(|j| j.image.as_str()))?;
+        let names = jobs.iter().map(|j| j.image.as_str());
+        upload::check_names(&store, &target, names, max)?;
         upload::record(&store, &jobs, target, idem.as_ref())
     })
     .await

@@ -29,6 +29,8 @@ pub struct UploadLimits {
     pub min_free_bytes: u64,
     pub max_request_bytes: u64,
     pub max_frames_per_request: usize,
+    /// Most frames one flight may hold, across requests.
+    pub max_frames_per_flight: usize,
 }
 
 /// One file of a request, in the spool.
@@ -400,17 +402,30 @@ pub enum Target {
     Flight(FlightId),
 }
 
-/// Refuses a name used twice in the request or already in the flight:
-/// names identify frames in results.
+/// Refuses a name used twice in the request or already in the flight
+/// (names identify frames in results), and a flight that would grow past
+/// `max_frames` frames.
 pub fn check_names<'a>(
     store: &crate::jobs::Store,
     target: &Target,
     names: impl Iterator<Item = &'a str>,
+    max_frames: usize,
 ) -> Result<(), ApiError> {
     let mut seen: std::collections::HashSet<String> = match target {
         Target::Flight(id) => store.flight_images(*id).into_iter().collect(),
         Target::NewFlight(..) => Default::default(),
     };
+    let names: Vec<&str> = names.collect();
+    if seen.len() + names.len() > max_frames {
+        return Err(ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too_many_frames",
+            format!(
+                "the flight would hold {} frames, more than the {max_frames} allowed (--max-frames-per-flight)",
+                seen.len() + names.len()
+            ),
+        ));
+    }
     for name in names {
         if !seen.insert(name.to_string()) {
             return Err(ApiError::conflict(
@@ -458,11 +473,13 @@ pub fn commit(
     mut upload: Upload,
     target: Target,
     idem: Option<IdemKey>,
+    max_frames: usize,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
     check_names(
         store,
         &target,
         upload.parts.iter().map(|p| p.image.as_str()),
+        max_frames,
     )?;
     let mut jobs = Vec::with_capacity(upload.parts.len());
     for part in upload.parts.iter_mut() {

@@ -1,12 +1,15 @@
 //! Crash and resource isolation: every job's untrusted frame is decoded
-//! and searched in a child process (`gcp-tagger run-job`), so a segfault
-//! or abort in GDAL or OpenCV, or a runaway, ends that child only.
+//! and searched in a worker process (`gcp-tagger run-job`, one per worker
+//! thread, kept across jobs so libraries load once), so a segfault or abort
+//! in GDAL or OpenCV, or a runaway, ends that process only; the next job
+//! gets a fresh one.
 //!
-//! The child reads the frame's header, says how much memory it needs, and
-//! waits; the parent takes that share of the RAM budget and answers `go`
-//! with the limits; the child then caps itself (RLIMIT_DATA at its current
-//! data size plus twice the estimate, RLIMIT_CPU from the frame's size) and
-//! runs. It dies with the server (PR_SET_PDEATHSIG, set by the child:
+//! For each job (a `job {json}` line on its stdin) the process reads the
+//! frame's header, says how much memory it needs, and waits; the parent
+//! takes that share of the RAM budget and answers `go` with the limits; the
+//! process then caps itself for the job (soft RLIMIT_DATA at its current
+//! data size plus twice the estimate, soft RLIMIT_CPU from the frame's
+//! size), runs, and lifts the caps afterwards. It dies with the server (PR_SET_PDEATHSIG, set by the child:
 //! spawning goes through posix_spawn, never a bare fork, see
 //! [`JobChild::spawn`]). Protocol, one line each
 //! on the child's stdout:
@@ -104,24 +107,12 @@ pub fn cpu_limit_secs(width: u32, height: u32) -> u64 {
 }
 
 impl JobChild {
-    /// Starts `gcp-tagger run-job` on a frame.
-    pub fn spawn(
-        frame: &Path,
-        image: &str,
-        params: &JobParams,
-        result: &Path,
-    ) -> std::io::Result<JobChild> {
+    /// Starts a worker process (`gcp-tagger run-job`); jobs go to it with
+    /// [`JobChild::send`].
+    pub fn spawn() -> std::io::Result<JobChild> {
         let exe = std::env::current_exe()?;
         let mut cmd = Command::new(exe);
         cmd.arg("run-job")
-            .arg("--frame")
-            .arg(frame)
-            .arg("--image")
-            .arg(image)
-            .arg("--params")
-            .arg(serde_json::to_string(params).expect("params serialize"))
-            .arg("--result")
-            .arg(result)
             .arg("--parent")
             .arg(std::process::id().to_string())
             .stdin(Stdio::piped())
@@ -165,6 +156,16 @@ impl JobChild {
             Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => Err(()),
         }
+    }
+
+    /// Sends a job; the child answers `header`, then waits for [`go`].
+    ///
+    /// [`go`]: JobChild::go
+    pub fn send(&mut self, order: &JobOrder) -> std::io::Result<()> {
+        let stdin = self.stdin.as_mut().ok_or(std::io::ErrorKind::BrokenPipe)?;
+        let json = serde_json::to_string(order).expect("job order serializes");
+        writeln!(stdin, "job {json}")?;
+        stdin.flush()
     }
 
     /// Lets the child run with these limits.
@@ -230,19 +231,19 @@ pub fn raster_code(e: &RasterError) -> &'static str {
 /// Arguments of the hidden `run-job` subcommand.
 #[derive(clap::Args, Debug)]
 pub struct RunJobArgs {
-    #[arg(long)]
-    pub frame: PathBuf,
-    #[arg(long)]
-    pub image: String,
-    /// The job's parameters as JSON (from the job store).
-    #[arg(long)]
-    pub params: String,
-    /// Where the result JSON goes (written whole or not at all).
-    #[arg(long)]
-    pub result: PathBuf,
-    /// The server's pid: the child dies with it.
+    /// The server's pid: the worker process dies with it.
     #[arg(long)]
     pub parent: Option<u32>,
+}
+
+/// One job as the worker sends it to its process (a `job` line).
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+pub struct JobOrder {
+    pub frame: PathBuf,
+    pub image: String,
+    pub params: JobParams,
+    /// Where the result JSON goes (written whole or not at all).
+    pub result: PathBuf,
 }
 
 struct Progress;
@@ -259,12 +260,12 @@ fn say(line: &str) {
     let _ = out.flush();
 }
 
-fn fail(code: &str, message: &str) -> ExitCode {
+fn fail(code: &str, message: &str) {
     say(&format!("error {code} {}", message.replace('\n', " ")));
-    ExitCode::from(2)
 }
 
-/// The child's side: `gcp-tagger run-job`.
+/// The worker process: `gcp-tagger run-job`, one job per `job` line on
+/// stdin until stdin closes.
 pub fn child_main(args: RunJobArgs) -> ExitCode {
     if let Some(parent) = args.parent {
         // SAFETY: prctl and getppid on this process.
@@ -277,55 +278,101 @@ pub fn child_main(args: RunJobArgs) -> ExitCode {
         }
     }
     crate::pipeline::init_native();
-    let params: JobParams = match serde_json::from_str(&args.params) {
-        Ok(p) => p,
-        Err(e) => return fail("invalid_parameters", &e.to_string()),
-    };
-    let options = match params.check() {
+    // PROJ objects are kept across the process's jobs.
+    let mut transformer = Transformer::default();
+    let stdin = std::io::stdin();
+    loop {
+        let mut line = String::new();
+        match stdin.read_line(&mut line) {
+            Ok(0) | Err(_) => return ExitCode::SUCCESS,
+            Ok(_) => {}
+        }
+        let Some(order) = line.strip_prefix("job ") else {
+            return ExitCode::from(3);
+        };
+        match serde_json::from_str::<JobOrder>(order) {
+            Ok(order) => {
+                if !run_one(&order, &mut transformer) {
+                    return ExitCode::from(3);
+                }
+            }
+            Err(e) => fail("internal", &format!("bad job order: {e}")),
+        }
+        unlimit_self();
+        // SAFETY: returns freed heap to the system between jobs.
+        unsafe { libc::malloc_trim(0) };
+    }
+}
+
+/// Runs one job; `false` when the server stopped talking mid-job.
+fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
+    let options = match order.params.check() {
         Ok((_, options)) => options,
-        Err(e) => return fail("invalid_parameters", &e.to_string()),
+        Err(e) => {
+            fail("invalid_parameters", &e.to_string());
+            return true;
+        }
     };
-    let frame = match open_frame(&args.frame) {
+    let frame = match open_frame(&order.frame) {
         Ok(f) => f,
-        Err(e) => return fail(raster_code(&e), &e.to_string()),
+        Err(e) => {
+            fail(raster_code(&e), &e.to_string());
+            return true;
+        }
     };
     let header = frame.header().clone();
     let need = estimate_frame_bytes(&header, options.tile_size);
     say(&format!("header {} {} {need}", header.width, header.height));
     let mut line = String::new();
-    if std::io::stdin().read_line(&mut line).is_err() {
-        return ExitCode::from(3);
+    if std::io::stdin().read_line(&mut line).unwrap_or(0) == 0 {
+        return false;
     }
     let mut go = line.split_whitespace();
     let (Some("go"), Some(data), Some(cpu)) = (go.next(), go.next(), go.next()) else {
-        return ExitCode::from(3);
+        return false;
     };
     if let (Ok(data), Ok(cpu)) = (data.parse::<u64>(), cpu.parse::<u64>()) {
         limit_self(data, cpu);
     }
-    let mut transformer = Transformer::default();
-    match detect_frame(frame, &args.image, &options, &mut transformer, &Progress) {
+    match detect_frame(frame, &order.image, &options, transformer, &Progress) {
         Ok(result) => {
             let bytes = serde_json::to_vec(&result).expect("results serialize");
-            if let Err(e) = write_whole(&args.result, &bytes) {
-                return fail("internal", &format!("cannot store the result: {e}"));
+            match write_whole(&order.result, &bytes) {
+                Ok(()) => say(&format!(
+                    "done {} {} {}",
+                    result.targets.len(),
+                    result.width,
+                    result.height
+                )),
+                Err(e) => fail("internal", &format!("cannot store the result: {e}")),
             }
-            say(&format!(
-                "done {} {} {}",
-                result.targets.len(),
-                result.width,
-                result.height
-            ));
-            ExitCode::SUCCESS
         }
         Err(FrameError::Raster(e)) => fail(raster_code(&e), &e.to_string()),
         Err(FrameError::TooLarge(e)) => fail("frame_too_large", &e.to_string()),
         Err(e) => fail("detection_failed", &e.to_string()),
     }
+    true
 }
 
-/// RLIMIT_DATA: what the process holds now plus `data` more; RLIMIT_CPU:
-/// `cpu` seconds (SIGXCPU), hard limit 10 s later (SIGKILL).
+fn set_soft_limit(resource: libc::__rlimit_resource_t, soft: u64) {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit/setrlimit on this process with a valid struct. Only
+    // the soft limit moves (up to the hard one), so the process can lift
+    // it again for its next job.
+    unsafe {
+        if libc::getrlimit(resource, &mut lim) != 0 {
+            return;
+        }
+        lim.rlim_cur = (soft as libc::rlim_t).min(lim.rlim_max);
+        libc::setrlimit(resource, &lim);
+    }
+}
+
+/// Soft RLIMIT_DATA: what the process holds now plus `data` more; soft
+/// RLIMIT_CPU: the CPU time used so far plus `cpu` seconds (SIGXCPU).
 fn limit_self(data: u64, cpu: u64) {
     let now = std::fs::read_to_string("/proc/self/status")
         .ok()
@@ -335,17 +382,18 @@ fn limit_self(data: u64, cpu: u64) {
                 .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
         })
         .map_or(512 * MIB, |kb| kb * 1024);
-    let set = |resource, soft: u64, hard: u64| {
-        let lim = libc::rlimit {
-            rlim_cur: soft as libc::rlim_t,
-            rlim_max: hard as libc::rlim_t,
-        };
-        // SAFETY: setrlimit on this process with a valid struct.
-        unsafe { libc::setrlimit(resource, &lim) };
-    };
-    let data_limit = now.saturating_add(data);
-    set(libc::RLIMIT_DATA, data_limit, data_limit);
-    set(libc::RLIMIT_CPU, cpu, cpu + 10);
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: getrusage on this process.
+    unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) };
+    let used = (usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) as u64 + 1;
+    set_soft_limit(libc::RLIMIT_DATA, now.saturating_add(data));
+    set_soft_limit(libc::RLIMIT_CPU, used + cpu);
+}
+
+/// Lifts the soft limits back to the hard ones between jobs.
+fn unlimit_self() {
+    set_soft_limit(libc::RLIMIT_DATA, u64::MAX);
+    set_soft_limit(libc::RLIMIT_CPU, u64::MAX);
 }
 
 fn write_whole(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

@@ -15,7 +15,7 @@ use crate::pipeline::memory::{RamBudget, MIB};
 use crate::storage::DataDir;
 use crate::telemetry::{Metrics, OutcomeLabels};
 
-use super::isolate::{cpu_limit_secs, ChildLine, JobChild};
+use super::isolate::{cpu_limit_secs, ChildLine, JobChild, JobOrder};
 use super::model::{JobError, JobRecord};
 use super::store::{Claim, Outcome, Store};
 
@@ -73,6 +73,7 @@ impl WorkerPool {
         let handles = (0..config.workers.max(1))
             .map(|i| {
                 let worker = Worker {
+                    child: None,
                     store: store.clone(),
                     data: data.clone(),
                     metrics: metrics.clone(),
@@ -128,6 +129,8 @@ impl WorkerPool {
 }
 
 struct Worker {
+    /// The worker process, kept between jobs (dropped: killed).
+    child: Option<JobChild>,
     store: Arc<Store>,
     data: DataDir,
     metrics: Arc<Metrics>,
@@ -137,7 +140,7 @@ struct Worker {
 }
 
 impl Worker {
-    fn run(self) {
+    fn run(mut self) {
         loop {
             let claim = match self.store.claim_next(&self.stop_claiming, IDLE_WAIT) {
                 Ok(Some(claim)) => claim,
@@ -153,7 +156,7 @@ impl Worker {
         }
     }
 
-    fn run_claim(&self, claim: Claim) {
+    fn run_claim(&mut self, claim: Claim) {
         let job = &claim.job;
         let span = tracing::info_span!("job", job.id = %job.id, image = %job.image);
         let _enter = span.enter();
@@ -196,7 +199,7 @@ impl Worker {
 
     /// Runs a claimed job in a child process (see [`super::isolate`]);
     /// returns its outcome and the frame's megapixels.
-    fn execute(&self, claim: &Claim) -> (Outcome, f64) {
+    fn execute(&mut self, claim: &Claim) -> (Outcome, f64) {
         let job = &claim.job;
         let fail = |code: &str, message: String| {
             (
@@ -209,10 +212,28 @@ impl Worker {
         };
         let frame = self.data.frame_path(job.id, &job.ext);
         let result = self.data.result_path(job.id);
-        let mut child = match JobChild::spawn(&frame, &job.image, &claim.params, &result) {
-            Ok(c) => c,
-            Err(e) => return fail("internal", format!("cannot start a worker process: {e}")),
+        // The worker's process, kept from its last job, or a fresh one.
+        let mut child = match self.child.take() {
+            Some(child) => child,
+            None => match JobChild::spawn() {
+                Ok(c) => c,
+                Err(e) => return fail("internal", format!("cannot start a worker process: {e}")),
+            },
         };
+        let order = JobOrder {
+            frame,
+            image: job.image.clone(),
+            params: claim.params.clone(),
+            result,
+        };
+        if let Err(e) = child.send(&order) {
+            // The kept process died while idle: one more try with a new one.
+            tracing::warn!(error = %e, "the worker process is gone; starting another");
+            child = match JobChild::spawn().and_then(|mut c| c.send(&order).map(|_| c)) {
+                Ok(c) => c,
+                Err(e) => return fail("internal", format!("cannot start a worker process: {e}")),
+            };
+        }
         tracing::debug!(pid = child.pid(), "worker process started");
         let mut megapixels = 0.0;
         let mut permit = None;
@@ -263,20 +284,18 @@ impl Worker {
                     height,
                 }) => {
                     drop(permit);
-                    return match child.wait_abnormal() {
-                        None => (
-                            Outcome::Succeeded {
-                                width,
-                                height,
-                                targets,
-                            },
-                            megapixels,
-                        ),
-                        Some(end) => self.crashed(job, &end),
-                    };
+                    self.child = Some(child);
+                    return (
+                        Outcome::Succeeded {
+                            width,
+                            height,
+                            targets,
+                        },
+                        megapixels,
+                    );
                 }
                 Some(ChildLine::Error { code, message }) => {
-                    let _ = child.wait_abnormal();
+                    self.child = Some(child);
                     return fail(&code, message);
                 }
                 None => tracing::warn!(%line, "unexpected line from the worker process"),

@@ -13,7 +13,7 @@ use crate::server::Server;
 use crate::service::{cli_output, flight, CRS};
 
 /// A large flat JPEG: seconds of work for one worker, no targets.
-fn big_frame(dir: &Path, name: &str) -> PathBuf {
+pub(crate) fn big_frame(dir: &Path, name: &str) -> PathBuf {
     let (w, h) = (8000, 6000);
     let img = GreyImage {
         width: w,
@@ -34,6 +34,14 @@ fn jobs_of(server: &Server, flight: &str) -> Vec<Value> {
 
 fn job_named<'a>(jobs: &'a [Value], image: &str) -> &'a Value {
     jobs.iter().find(|j| j["image"] == image).unwrap()
+}
+
+/// The id of the job of `image` in a flight.
+fn job_id(server: &Server, flight: &str, image: &str) -> String {
+    job_named(&jobs_of(server, flight), image)["id"]
+        .as_str()
+        .unwrap()
+        .to_string()
 }
 
 /// Waits until `f` holds, up to a minute.
@@ -60,10 +68,11 @@ fn kill_9_mid_flight_then_restart_completes_every_job_once() {
     let id = flight["flight"]["id"].as_str().unwrap().to_string();
 
     // Kill the server while the big frame's worker runs.
+    let big_job = job_id(&server, &id, "big_0.jpg");
     wait_until("the big frame's worker", || {
-        !server.worker_pids("big_0.jpg").is_empty()
+        !server.worker_pids(&big_job).is_empty()
     });
-    let orphan = server.worker_pids("big_0.jpg")[0];
+    let orphan = server.worker_pids(&big_job)[0];
     server.kill9();
     // The worker process dies with the server.
     wait_until("the orphaned worker to die", || {
@@ -102,8 +111,9 @@ fn a_dying_worker_costs_a_retry_and_three_deaths_fail_the_job() {
         .to_string();
 
     let kill = |image: &str| {
-        wait_until(image, || !server.worker_pids(image).is_empty());
-        for pid in server.worker_pids(image) {
+        let job = job_id(&server, &id, image);
+        wait_until(image, || !server.worker_pids(&job).is_empty());
+        for pid in server.worker_pids(&job) {
             // SAFETY: kill(2) on a process of this test's server.
             unsafe { libc::kill(pid as i32, libc::SIGKILL) };
         }

@@ -136,8 +136,8 @@ impl Server {
         let _ = child.wait();
     }
 
-    /// Pids of the worker processes running `image` (`run-job --image`).
-    pub fn worker_pids(&self, image: &str) -> Vec<u32> {
+    /// Pids of the worker processes that have job `job`'s frame open.
+    pub fn worker_pids(&self, job: &str) -> Vec<u32> {
         let server = self.pid();
         let mut pids = Vec::new();
         for entry in std::fs::read_dir("/proc").unwrap().flatten() {
@@ -153,12 +153,13 @@ impl Server {
             if ppid != Some(server) {
                 continue;
             }
-            let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
-            let args: Vec<&[u8]> = cmdline.split(|b| *b == 0).collect();
-            let runs = args
-                .windows(2)
-                .any(|w| w[0] == b"--image" && w[1] == image.as_bytes());
-            if args.iter().any(|a| *a == b"run-job") && runs {
+            let Ok(fds) = std::fs::read_dir(format!("/proc/{pid}/fd")) else {
+                continue;
+            };
+            let has_frame = fds.flatten().any(|fd| {
+                std::fs::read_link(fd.path()).is_ok_and(|t| t.to_string_lossy().contains(job))
+            });
+            if has_frame {
                 pids.push(pid);
             }
         }

@@ -233,8 +233,11 @@ fn canceling_stops_queued_and_running_jobs() {
     let frames = &flight().1;
     let data = tempfile::tempdir().unwrap();
     let server = Server::start(&data.path().join("d"), &["--workers", "1"]);
-    // 256 px tiles: ~35 tiles a frame, so the running job is caught mid-way.
-    let parts: Vec<&Path> = frames.iter().map(PathBuf::as_path).collect();
+    // A large frame first (seconds of work, 256 px tiles), so the running
+    // job is caught mid-way and the others are still queued.
+    let big = crate::durability::big_frame(data.path(), "big.jpg");
+    let mut parts: Vec<&Path> = vec![big.as_path()];
+    parts.extend(frames.iter().map(PathBuf::as_path));
     let r = server.post_files(
         &format!("/v1/flights?crs={CRS}&tile_size=256&max_target_px=100"),
         &parts,

@@ -100,14 +100,14 @@ fn run_server(frames: &[PathBuf]) -> (f64, u64, Vec<Duration>) {
     eprintln!("uploaded in {:.1} s", start.elapsed().as_secs_f64());
 
     // Status requests, one every 20 ms, while the flight runs; the RSS of
-    // the server and its worker processes, summed, every 20 ms.
+    // the server and its worker processes, summed, every 100 ms.
     let done = AtomicBool::new(false);
     let tree_peak = std::sync::atomic::AtomicU64::new(0);
     let latencies = std::thread::scope(|s| {
         s.spawn(|| {
             while !done.load(Ordering::SeqCst) {
                 tree_peak.fetch_max(tree_rss_kib(server.pid()), Ordering::SeqCst);
-                std::thread::sleep(Duration::from_millis(20));
+                std::thread::sleep(Duration::from_millis(100));
             }
         });
         let poller = s.spawn(|| {
@@ -146,7 +146,8 @@ fn run_server(frames: &[PathBuf]) -> (f64, u64, Vec<Duration>) {
     )
 }
 
-/// VmRSS of `pid` plus that of its child processes, in KiB.
+/// VmRSS of `pid` plus that of its child processes, in KiB (children from
+/// /proc/PID/task/*/children: no scan of all of /proc).
 fn tree_rss_kib(pid: u32) -> u64 {
     let rss = |p: u32| -> u64 {
         std::fs::read_to_string(format!("/proc/{p}/status"))
@@ -159,16 +160,13 @@ fn tree_rss_kib(pid: u32) -> u64 {
             .unwrap_or(0)
     };
     let mut total = rss(pid);
-    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        let Ok(child) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let stat = std::fs::read_to_string(format!("/proc/{child}/stat")).unwrap_or_default();
-        let ppid = stat
-            .rsplit_once(')')
-            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-            .and_then(|p| p.parse::<u32>().ok());
-        if ppid == Some(pid) {
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        let children = std::fs::read_to_string(task.path().join("children")).unwrap_or_default();
+        for child in children.split_whitespace().filter_map(|c| c.parse().ok()) {
             total += rss(child);
         }
     }

@@ -299,8 +299,6 @@ pub fn child_main(args: RunJobArgs) -> ExitCode {
             Err(e) => fail("internal", &format!("bad job order: {e}")),
         }
         unlimit_self();
-        // SAFETY: returns freed heap to the system between jobs.
-        unsafe { libc::malloc_trim(0) };
     }
 }
 

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::pipeline::memory::{RamBudget, MIB};
+use crate::pipeline::memory::{RamBudget, BASE_PROCESS_BYTES, MIB};
 use crate::storage::DataDir;
 use crate::telemetry::{Metrics, OutcomeLabels};
 
@@ -31,12 +31,14 @@ pub const MAX_ATTEMPTS: u32 = 3;
 /// Memory a worker process may use beyond twice its frame's estimate.
 const CHILD_HEADROOM_BYTES: u64 = 256 * MIB;
 
-/// Memory of the service's async side (HTTP connections, upload buffers,
-/// the job store) on top of the pipeline's base. The load benchmark measured
-/// 236 MiB peak for the service against 227 MiB for `detect` on the same
-/// 100 frames and limit (~9 MiB with one upload); the rest is headroom for
-/// several uploads streaming at once (64 KiB-scale buffers each).
-pub const SERVICE_BASE_BYTES: u64 = 24 * MIB;
+/// Memory of the server process itself (HTTP, upload buffers, the job
+/// store, the libraries it links). The load benchmark measured a peak RSS
+/// (VmHWM) of 56-58 MiB for it while workers ran 100 frames; the rest is
+/// headroom for several uploads streaming at once. Each worker process
+/// adds the pipeline's own base ([`BASE_PROCESS_BYTES`]); together, the
+/// same benchmark measured 354 MiB for the server and 2 workers on
+/// 4000x3000 frames.
+pub const SERVICE_BASE_BYTES: u64 = 64 * MIB;
 
 /// Pool settings.
 #[derive(Debug, Clone)]
@@ -64,9 +66,18 @@ impl WorkerPool {
         config: &PoolConfig,
     ) -> WorkerPool {
         crate::pipeline::init_native();
-        let budget = Arc::new(RamBudget::for_process_limit(
-            config.max_ram_bytes.saturating_sub(SERVICE_BASE_BYTES),
+        // The server, and each worker process's libraries and GDAL cache,
+        // come off the limit before frames share the rest.
+        let reserved = SERVICE_BASE_BYTES + config.workers.max(1) as u64 * BASE_PROCESS_BYTES;
+        let budget = Arc::new(RamBudget::new(
+            config.max_ram_bytes.saturating_sub(reserved),
         ));
+        if budget.capacity() == 0 {
+            tracing::warn!(
+                reserved_mib = reserved / MIB,
+                "the memory limit leaves nothing for frames: raise --max-ram-gb or lower --workers"
+            );
+        }
         metrics.budget_bytes.set(budget.capacity() as i64);
         let stop_claiming = Arc::new(AtomicBool::new(false));
         let abort = Arc::new(AtomicBool::new(false));

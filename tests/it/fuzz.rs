@@ -3,6 +3,7 @@
 //! invariants. Case counts are in the README.
 
 use gcp_tagger::jobs::isolate::ChildLine;
+use gcp_tagger::jobs::params::PARAM_KEYS;
 use gcp_tagger::jobs::JobParams;
 use gcp_tagger::storage::header::dimensions;
 use gcp_tagger::storage::s3::S3Url;
@@ -10,28 +11,19 @@ use gcp_tagger::storage::spool::sanitize_name;
 use gcp_tagger::survey::parse::parse_survey;
 use proptest::prelude::*;
 
-const KEYS: [&str; 13] = [
-    "marker_types",
-    "dictionary",
-    "apriltag_family",
-    "crs",
-    "pixel_tolerance",
-    "max_refine_shift_px",
-    "tile_size",
-    "max_target_px",
-    "min_target_px",
-    "target_size_m",
-    "gsd_cm",
-    "name",
-    "zzz",
-];
+/// Every parameter key, plus two that are not parameters.
+fn keys() -> Vec<&'static str> {
+    let mut keys = PARAM_KEYS.to_vec();
+    keys.extend(["name", "zzz"]);
+    keys
+}
 
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(4000))]
 
     #[test]
     fn query_parameters_never_panic(
-        pairs in prop::collection::vec((prop::sample::select(KEYS.to_vec()), ".{0,24}"), 0..8)
+        pairs in prop::collection::vec((prop::sample::select(keys()), ".{0,24}"), 0..8)
     ) {
         let refs: Vec<(&str, &str)> = pairs.iter().map(|(k, v)| (*k, v.as_str())).collect();
         if let Err(e) = JobParams::from_pairs(refs) {

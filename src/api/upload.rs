@@ -244,28 +244,14 @@ async fn spool_stream(
             Some(ext) => {
                 let (spooled, pixels) = (path.clone(), limits.pixels);
                 let claimed =
-                    tokio::task::spawn_blocking(move || frame_header::dimensions(&spooled))
+                    tokio::task::spawn_blocking(move || frame_header::check(&spooled, pixels))
                         .await
                         .map_err(|e| ApiError::internal("reading a frame header", e))?;
                 match claimed {
                     Err(e) => Err(JobError {
-                        code: "unreadable_frame".into(),
-                        message: format!("{image}: unreadable header: {e}"),
+                        code: e.code().into(),
+                        message: format!("{image}: {e}"),
                     }),
-                    Ok((w, h))
-                        if w > pixels.max_side
-                            || h > pixels.max_side
-                            || w as u64 * h as u64 > pixels.max_pixels =>
-                    {
-                        Err(JobError {
-                            code: "frame_too_large".into(),
-                            message: format!(
-                                "{image}: the header claims {w} x {h} pixels; the limits are {} px a side and {} MP",
-                                pixels.max_side,
-                                pixels.max_pixels / 1_000_000
-                            ),
-                        })
-                    }
                     Ok(_) => Ok((guard.0.take().expect("path kept"), ext)),
                 }
             }

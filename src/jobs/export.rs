@@ -19,8 +19,10 @@ use crate::storage::DataDir;
 
 use super::gcp;
 use super::model::{FlightId, FlightRecord, JobRecord};
-use super::results::render_jobs;
+use super::results::load_frames;
 use super::store::Store;
+use crate::pipeline::georef::TargetCrs;
+use crate::pipeline::output::render;
 
 /// Attempts before an export is marked failed.
 pub const MAX_ATTEMPTS: u32 = 5;
@@ -89,17 +91,16 @@ async fn export(
     };
     let (data, flight) = (data.clone(), flight.clone());
     let files = tokio::task::spawn_blocking(move || {
-        let crs = &flight.params.crs;
+        // The stored results are read once for every file.
+        let frames = load_frames(&data, &jobs)?;
+        let crs = TargetCrs::parse(&flight.params.crs).map_err(|e| format!("stored CRS: {e}"))?;
         let mut files = vec![
-            ("results.csv", render_jobs(&data, &jobs, crs, Format::Csv)?),
-            (
-                "results.geojson",
-                render_jobs(&data, &jobs, crs, Format::GeoJson)?,
-            ),
+            ("results.csv", render(Format::Csv, &frames, &crs)),
+            ("results.geojson", render(Format::GeoJson, &frames, &crs)),
         ];
         if let Some(stored) = gcp::load_survey(&data, flight.id)? {
             let survey = stored.parse().map_err(|e| format!("stored survey: {e}"))?;
-            files.extend(gcp::flight_exports(&data, &flight, &jobs, &survey)?);
+            files.extend(gcp::exports_for(&frames, &flight, &survey)?);
         }
         Ok::<_, String>(files)
     })

@@ -203,14 +203,7 @@ impl FetchTask {
         let checked = tokio::task::spawn_blocking(move || header::check(&path, pixels))
             .await
             .map_err(|e| error("internal", e.to_string()))?;
-        checked.map_err(|e| {
-            let code = if e.contains("the limits are") {
-                "frame_too_large"
-            } else {
-                "unreadable_frame"
-            };
-            error(code, format!("{source}: {e}"))
-        })?;
+        checked.map_err(|e| error(e.code(), format!("{source}: {e}")))?;
         Ok((ext, bytes))
     }
 }

@@ -14,6 +14,7 @@ use crate::survey::{export, Survey};
 
 use super::model::{FlightId, FlightRecord, JobRecord};
 use super::results::load_frames;
+use crate::pipeline::frame::FrameResult;
 
 /// A survey as stored: the uploaded text and the CRS parameter, if any.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -53,12 +54,20 @@ pub fn flight_exports(
     jobs: &[JobRecord],
     survey: &Survey,
 ) -> Result<Vec<(&'static str, String)>, String> {
-    let frames = load_frames(data, jobs)?;
+    exports_for(&load_frames(data, jobs)?, flight, survey)
+}
+
+/// Every export file from frame results already read.
+pub fn exports_for(
+    frames: &[FrameResult],
+    flight: &FlightRecord,
+    survey: &Survey,
+) -> Result<Vec<(&'static str, String)>, String> {
     let tolerance = flight
         .params
         .pixel_tolerance
         .unwrap_or(DEFAULT_PIXEL_TOLERANCE);
     let mut transformer = Transformer::default();
-    let matched = match_frames(&frames, survey, tolerance, &mut transformer);
+    let matched = match_frames(frames, survey, tolerance, &mut transformer);
     export::all(survey, &matched, tolerance, &mut transformer)
 }

@@ -38,17 +38,36 @@ pub fn dimensions(path: &Path) -> Result<(u32, u32), String> {
     Err("not a JPEG, PNG or TIFF".into())
 }
 
+/// Why a frame's header is refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum HeaderError {
+    #[error("unreadable header: {0}")]
+    Unreadable(String),
+    #[error("{0}")]
+    TooLarge(String),
+}
+
+impl HeaderError {
+    /// The job error code.
+    pub fn code(&self) -> &'static str {
+        match self {
+            HeaderError::Unreadable(_) => "unreadable_frame",
+            HeaderError::TooLarge(_) => "frame_too_large",
+        }
+    }
+}
+
 /// Checks a frame's claimed size against `limits`; the error names both.
-pub fn check(path: &Path, limits: PixelLimits) -> Result<(u32, u32), String> {
-    let (w, h) = dimensions(path)?;
+pub fn check(path: &Path, limits: PixelLimits) -> Result<(u32, u32), HeaderError> {
+    let (w, h) = dimensions(path).map_err(HeaderError::Unreadable)?;
     let pixels = w as u64 * h as u64;
     if w > limits.max_side || h > limits.max_side || pixels > limits.max_pixels {
-        return Err(format!(
+        return Err(HeaderError::TooLarge(format!(
             "the frame claims {w} x {h} pixels ({:.0} MP); the limits are {} px a side and {:.0} MP",
             pixels as f64 / 1e6,
             limits.max_side,
             limits.max_pixels as f64 / 1e6
-        ));
+        )));
     }
     Ok((w, h))
 }
@@ -195,7 +214,8 @@ mod tests {
             max_side: 60_000,
         };
         let e = check(f.path(), limits).unwrap_err();
-        assert!(e.contains("100000 x 100000"), "{e}");
+        assert_eq!(e.code(), "frame_too_large");
+        assert!(e.to_string().contains("100000 x 100000"), "{e}");
 
         // JPEG: APP0 then SOF0 with 3000 rows of 4000 columns.
         let jpg = [

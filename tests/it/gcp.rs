@@ -545,6 +545,11 @@ fn raw_jpegs_are_matched_through_their_exif_and_xmp_pose() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let obs = report["observations"].as_array().unwrap();
     assert_eq!(obs.len(), 6, "3 points x 2 frames: {report:#}");
+    let devs: Vec<String> = obs.iter().map(|o| o["deviation_px"].to_string()).collect();
+    eprintln!(
+        "raw JPEG deviations from the EXIF/XMP prediction, px: {}",
+        devs.join(", ")
+    );
     for o in obs {
         assert_eq!(o["basis"], "camera", "{o}");
         let dev = o["deviation_px"].as_f64().unwrap();

@@ -70,7 +70,6 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
     let mut upload: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
     let bad: Vec<std::path::PathBuf> = names.iter().map(|n| d.join(n)).collect();
     upload.extend(bad.iter().map(|p| p.as_path()));
-    let started = Instant::now();
     let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
     assert_eq!(r.status(), 201);
     let v: Value = r.json().unwrap();
@@ -94,7 +93,6 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
         .unwrap()
         .to_string();
     assert!(message.contains("100000 x 100000"), "{message}");
-    assert!(started.elapsed().as_secs() < 10);
 
     let id = v["flight"]["id"].as_str().unwrap();
     server.wait_flight(id);
@@ -124,6 +122,14 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
     for (name, st, code) in expected {
         assert_eq!(state(name), (st.to_string(), code.to_string()), "{name}");
     }
+    // Refused from its header alone: no worker ever opened the bomb.
+    let bomb_job = jobs["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|j| j["image"] == "bomb.png")
+        .unwrap();
+    assert_eq!(bomb_job["attempts"], 0, "{bomb_job}");
     // The good frames' results are whole and the server is up.
     let csv = server.get_text(&format!("/v1/flights/{id}/results.csv"));
     let good: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();

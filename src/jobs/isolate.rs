@@ -93,6 +93,16 @@ impl ChildLine {
     }
 }
 
+/// What a wait for the child's next line gave.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Heard {
+    Line(String),
+    /// Nothing within the timeout.
+    Nothing,
+    /// The child closed its output: it has ended.
+    Ended,
+}
+
 /// A running child and its lines.
 pub struct JobChild {
     child: Child,
@@ -148,13 +158,12 @@ impl JobChild {
         self.child.id()
     }
 
-    /// The next line, `Ok(None)` on timeout, `Err` once the child closed
-    /// its output (it has ended).
-    pub fn next_line(&self, timeout: Duration) -> Result<Option<String>, ()> {
+    /// The next line, waiting at most `timeout`.
+    pub fn next_line(&self, timeout: Duration) -> Heard {
         match self.lines.recv_timeout(timeout) {
-            Ok(line) => Ok(Some(line)),
-            Err(RecvTimeoutError::Timeout) => Ok(None),
-            Err(RecvTimeoutError::Disconnected) => Err(()),
+            Ok(line) => Heard::Line(line),
+            Err(RecvTimeoutError::Timeout) => Heard::Nothing,
+            Err(RecvTimeoutError::Disconnected) => Heard::Ended,
         }
     }
 

@@ -15,7 +15,7 @@ use crate::pipeline::memory::{RamBudget, BASE_PROCESS_BYTES, MIB};
 use crate::storage::DataDir;
 use crate::telemetry::{Metrics, OutcomeLabels};
 
-use super::isolate::{cpu_limit_secs, ChildLine, JobChild, JobOrder};
+use super::isolate::{cpu_limit_secs, ChildLine, Heard, JobChild, JobOrder};
 use super::model::{JobError, JobRecord};
 use super::store::{Claim, Outcome, Store};
 
@@ -250,8 +250,8 @@ impl Worker {
         let mut permit = None;
         loop {
             let line = match child.next_line(POLL) {
-                Ok(Some(line)) => line,
-                Ok(None) => {
+                Heard::Line(line) => line,
+                Heard::Nothing => {
                     if claim.cancel.load(Ordering::SeqCst) {
                         child.kill();
                         return (Outcome::Canceled, 0.0);
@@ -262,7 +262,7 @@ impl Worker {
                     }
                     continue;
                 }
-                Err(()) => break,
+                Heard::Ended => break,
             };
             tracing::debug!(%line, "from the worker process");
             match ChildLine::parse(&line) {

@@ -13,11 +13,12 @@ use crate::support::*;
 const FRAMES: u64 = 4;
 const TARGETS: usize = 30;
 
-/// The targets are 40-120 px: searched from 30 px up, as a user who knows
-/// the target size and GSD (or sets `min_target_px`) would.
-fn printed_options(mode: MarkerType) -> gcp_tagger::pipeline::batch::BatchOptions {
-    let mut o = options("EPSG:4326", &[mode]);
-    o.frame.detector.min_target_px = 30.0;
+/// Issue 3's figures are for targets of 40 px and more: searched from 40 px
+/// up (as `--min-target-px 40`, or a target size with a GSD, would), on
+/// the target frames and the clutter frames alike.
+fn printed_options(modes: &[MarkerType]) -> gcp_tagger::pipeline::batch::BatchOptions {
+    let mut o = options("EPSG:4326", modes);
+    o.frame.detector.min_target_px = 40.0;
     o
 }
 
@@ -35,7 +36,7 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
         let scene = printed_scene(2400, 1800, TARGETS, mode, (40.0, 120.0), seed);
         let name = format!("{mode}{seed}.png");
         let (path, truth) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);
-        let result = run_one(&path, &printed_options(mode));
+        let result = run_one(&path, &printed_options(&[mode]));
         let m = match_truth(&result.targets, &truth);
         assert!(
             m.false_positives.is_empty(),
@@ -84,15 +85,15 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
     Figures { recall, errors }
 }
 
-// Issue 3 asks for recall >= 98%; these floors are what the detectors reach
-// today (README, "Printed targets": crosshair 79%, circle 78%), kept as
-// regression guards until the gap is closed. Precision targets are met in
-// full where the README says so.
+// Issue 3 asks for recall >= 98%; the detectors reach 94% (crosshair) and
+// 95% (circle) on these frames (README, "Printed targets"). The recall
+// floors guard that level until the gap is closed; the precision targets
+// are asserted in full except the disc's p95 (0.39 px against 0.3).
 
 #[test]
 fn crosshair_and_checker_targets_are_found_to_a_tenth_of_a_pixel() {
     let f = measure(MarkerType::Crosshair, 300);
-    assert!(f.recall >= 0.75, "recall {}", f.recall);
+    assert!(f.recall >= 0.93, "recall {}", f.recall);
     let all = f.errors.concat();
     assert!(quantile(&all, 0.5) <= 0.1, "median");
     assert!(quantile(&all, 0.95) <= 0.3, "p95");
@@ -101,14 +102,15 @@ fn crosshair_and_checker_targets_are_found_to_a_tenth_of_a_pixel() {
 #[test]
 fn bullseye_centres_are_subpixel_and_discs_are_found() {
     let f = measure(MarkerType::Circle, 400);
-    assert!(f.recall >= 0.75, "recall {}", f.recall);
+    assert!(f.recall >= 0.93, "recall {}", f.recall);
     let [bullseye, disc] = &f.errors;
     assert!(quantile(bullseye, 0.5) <= 0.1, "bullseye median");
     assert!(quantile(bullseye, 0.95) <= 0.3, "bullseye p95");
-    // A disc's centre comes from the board's vanishing line, whose edge
-    // points are not yet subpixel: known gap, see README.
-    assert!(quantile(disc, 0.5) <= 0.3, "disc median");
-    assert!(quantile(disc, 0.95) <= 1.2, "disc p95");
+    // A disc's centre is the pole of the board's vanishing line; the board
+    // edges are subpixel, but a shadow edge across a small board still
+    // moves it: p95 0.39 px, a known gap (README).
+    assert!(quantile(disc, 0.5) <= 0.1, "disc median");
+    assert!(quantile(disc, 0.95) <= 0.45, "disc p95");
 }
 
 /// Solar panels, paving checkers, road crosses, manholes, pyramid roofs,
@@ -121,7 +123,7 @@ fn lookalike_clutter_gives_no_detection() {
         let scene = clutter_scene(2400, 1800, 700 + seed);
         let name = format!("clutter{seed}.png");
         let (path, _) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);
-        let result = run_one(&path, &options("EPSG:4326", &modes));
+        let result = run_one(&path, &printed_options(&modes));
         let found: Vec<_> = result
             .targets
             .iter()

@@ -1,13 +1,11 @@
-//! Candidate regions for the printed-target detectors: dark regions of an
-//! adaptive threshold and the holes inside them, as OpenCV contours.
+//! Candidate regions for the circle detector: dark regions of an adaptive
+//! threshold and the holes inside them, as OpenCV contours.
 //!
 //! This stage only proposes; every candidate is verified on the grey image
 //! by its detector, so it errs on the side of proposing too much.
 
-use opencv::core::{self, Mat, Point, Vector};
+use opencv::core::{Mat, Point, Vector};
 use opencv::imgproc;
-
-use super::geometry::Pt;
 
 /// Adaptive-threshold window, in pixels: wider than the bars and rings of
 /// targets down to the smallest size searched (a 40 px cross has 6-10 px
@@ -21,62 +19,36 @@ pub const THRESHOLD_OFFSET: f64 = 10.0;
 /// One contour of the thresholded tile.
 #[derive(Debug, Clone)]
 pub struct Blob {
-    /// Centroid of the region the contour encloses (holes not subtracted).
-    pub centre: Pt,
     /// Enclosed area in square pixels.
     pub area: f64,
     /// The contour's points (pixel centres), for ellipse fitting.
     pub points: Vector<Point>,
-    /// True for the boundary of a hole in a region.
-    pub hole: bool,
 }
 
-/// Which regions to outline.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Polarity {
-    /// Darker than the local mean (black quadrants, discs, rings).
-    Dark,
-    /// Brighter than the local mean (white quadrants, a checker's light half
-    /// when its dark half merges with shadowed ground).
-    Bright,
-}
-
-/// Regions of `polarity` and their holes whose enclosed area lies in
-/// `area_range`. `mask` is scratch space reused across tiles.
-pub fn find_blobs(
-    tile: &Mat,
-    polarity: Polarity,
-    area_range: (f64, f64),
-    mask: &mut Mat,
-) -> opencv::Result<Vec<Blob>> {
-    // OpenCV compares with (mean - C): BINARY_INV marks src <= mean - C,
-    // BINARY with -C marks src > mean + C.
-    let (kind, offset) = match polarity {
-        Polarity::Dark => (imgproc::THRESH_BINARY_INV, THRESHOLD_OFFSET),
-        Polarity::Bright => (imgproc::THRESH_BINARY, -THRESHOLD_OFFSET),
-    };
+/// Dark regions and their holes whose enclosed area lies in `area_range`.
+/// `mask` is scratch space reused across tiles.
+pub fn find_blobs(tile: &Mat, area_range: (f64, f64), mask: &mut Mat) -> opencv::Result<Vec<Blob>> {
+    // OpenCV compares with (mean - C): BINARY_INV marks src <= mean - C.
     imgproc::adaptive_threshold(
         tile,
         mask,
         255.0,
         imgproc::ADAPTIVE_THRESH_MEAN_C,
-        kind,
+        imgproc::THRESH_BINARY_INV,
         THRESHOLD_WINDOW_PX,
-        offset,
+        THRESHOLD_OFFSET,
     )?;
     let mut contours: Vector<Vector<Point>> = Vector::new();
-    let mut hierarchy: Vector<core::Vec4i> = Vector::new();
-    // Two levels: outer boundaries of dark regions, and their holes.
-    imgproc::find_contours_with_hierarchy(
+    // Outer boundaries of dark regions and of their holes alike.
+    imgproc::find_contours(
         mask,
         &mut contours,
-        &mut hierarchy,
-        imgproc::RETR_CCOMP,
+        imgproc::RETR_LIST,
         imgproc::CHAIN_APPROX_NONE,
         Point::new(0, 0),
     )?;
     let mut out = Vec::new();
-    for (i, contour) in contours.iter().enumerate() {
+    for contour in contours.iter() {
         // A contour encloses at least (perimeter / 4)^2 when square; skip
         // tiny ones before computing moments.
         let n = contour.len() as f64;
@@ -87,12 +59,9 @@ pub fn find_blobs(
         if m.m00 < area_range.0 || m.m00 > area_range.1 {
             continue;
         }
-        let hole = hierarchy.get(i)?[3] >= 0;
         out.push(Blob {
-            centre: (m.m10 / m.m00, m.m01 / m.m00),
             area: m.m00,
             points: contour,
-            hole,
         });
     }
     Ok(out)

@@ -129,18 +129,18 @@ impl CircleDetector {
         }
     }
 
-    fn analyse(&self, img: &GreyView, start: Ellipse) -> Option<Found> {
+    fn analyse(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
         let mut e = start;
-        let mut pass = rays(img, &e)?;
+        let mut pass = rays(img, &e).ok_or("no edges")?;
         let bullseye = is_bullseye(&pass);
         let mut outer = None;
         for _ in 0..2 {
-            let inner = fit(&pass.edges[0])?;
+            let inner = fit(&pass.edges[0]).ok_or("inner fit")?;
             if bullseye {
-                outer = Some(fit(&pass.edges[2])?);
+                outer = Some(fit(&pass.edges[2]).ok_or("outer fit")?);
             }
             e = inner;
-            pass = rays(img, &e)?;
+            pass = rays(img, &e).ok_or("no edges")?;
         }
         let n = pass.rays as f64;
         let edges_used = if bullseye { 3 } else { 1 };
@@ -149,15 +149,18 @@ impl CircleDetector {
             .map(|v| v.len() as f64 / n)
             .fold(1.0, f64::min);
         if coverage < MIN_COVERAGE {
-            return None;
+            return Err("coverage");
         }
-        let e = fit(&pass.edges[0])?;
-        let rms = rms(&e, &pass.edges[0]);
+        let (e, inliers) = fit_robust(&pass.edges[0]).ok_or("inner fit")?;
+        let rms = rms(&e, &inliers);
         let (centre, size) = if bullseye {
-            let outer = fit(&pass.edges[2]).or(outer)?;
+            let outer = fit_robust(&pass.edges[2])
+                .map(|(e, _)| e)
+                .or(outer)
+                .ok_or("outer fit")?;
             let ratio = outer.radius() / e.radius();
             if !(2.6..=3.4).contains(&ratio) {
-                return None;
+                return Err("ring ratio");
             }
             let c = concentric_centre(&e, &outer)
                 .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
@@ -173,15 +176,18 @@ impl CircleDetector {
                 .unwrap_or(e.c);
             (c, 2.0 * e.radius())
         };
-        if !self.sizes.accepts(size) || rms > MAX_FIT_RMS_PX + 0.01 * e.radius() {
-            return None;
+        if !self.sizes.accepts(size) {
+            return Err("size");
+        }
+        if rms > MAX_FIT_RMS_PX + 0.01 * e.radius() {
+            return Err("fit rms");
         }
         let confidence = (coverage
             * (1.0 / (1.0 + (rms / 0.25).powi(2)))
             * (pass.contrast / 40.0).clamp(0.0, 1.0))
         .powf(1.0 / 3.0);
         let r = size / 2.0;
-        Some(Found {
+        Ok(Found {
             centre,
             corners: [(-r, -r), (r, -r), (r, r), (-r, r)]
                 .map(|(dx, dy)| (centre.0 + dx, centre.1 + dy)),
@@ -212,8 +218,7 @@ impl Detector for CircleDetector {
             0.8 * std::f64::consts::PI * r_min * r_min,
             1.2 * std::f64::consts::PI * r_max * r_max,
         );
-        let blobs =
-            blobs::find_blobs(tile, blobs::Polarity::Dark, area, &mut self.mask).map_err(err)?;
+        let blobs = blobs::find_blobs(tile, area, &mut self.mask).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
         let mut starts: Vec<Ellipse> = Vec::new();
         for blob in &blobs {
@@ -233,7 +238,19 @@ impl Detector for CircleDetector {
         });
         let mut found: Vec<Found> = starts
             .iter()
-            .filter_map(|e| self.analyse(&img, *e))
+            .filter_map(|e| match self.analyse(&img, *e) {
+                Ok(f) => Some(f),
+                Err(why) => {
+                    tracing::trace!(
+                        x = e.c.0 + origin.0 as f64,
+                        y = e.c.1 + origin.1 as f64,
+                        size = 2.0 * e.radius(),
+                        why,
+                        "circle candidate rejected"
+                    );
+                    None
+                }
+            })
             .collect();
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);
         Ok(best_per_target(&mut found)
@@ -332,6 +349,22 @@ fn fit(points: &[Pt]) -> Option<Ellipse> {
     (e.a.is_finite() && e.b.is_finite() && e.a > 1.0 && e.b > 1.0).then_some(e)
 }
 
+/// [`fit`], then again without the points farther from the first ellipse
+/// than 2.5 robust standard deviations (at least 0.1 px): edge points where a
+/// shadow edge or a blemish crosses the ring. Returns the inliers too.
+fn fit_robust(points: &[Pt]) -> Option<(Ellipse, Vec<Pt>)> {
+    let first = fit(points)?;
+    let r: Vec<f64> = points.iter().map(|p| first.distance(*p).abs()).collect();
+    let limit = (2.5 * 1.4826 * pr::quantile(&r, 0.5)).max(0.1);
+    let inliers: Vec<Pt> = points
+        .iter()
+        .zip(&r)
+        .filter(|(_, r)| **r <= limit)
+        .map(|(p, _)| *p)
+        .collect();
+    Some((fit(&inliers)?, inliers))
+}
+
 fn rms(e: &Ellipse, points: &[Pt]) -> f64 {
     let ss: f64 = points.iter().map(|p| e.distance(*p).powi(2)).sum();
     (ss / points.len().max(1) as f64).sqrt()
@@ -342,7 +375,7 @@ fn rms(e: &Ellipse, points: &[Pt]) -> f64 {
 /// Returns the image of the board plane's line at infinity (homogeneous, in
 /// coordinates relative to the disc's centre), from the vanishing points of
 /// its opposite sides; None when there is no such board.
-fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Option<[f64; 3]> {
+fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Result<[f64; 3], &'static str> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
     let mut uniform = 0;
@@ -370,7 +403,9 @@ fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Option<[f64; 3]>
         let mut away = 0;
         while s <= 4.5 {
             let Some(v) = at(s) else { break };
-            if (v - board).abs() > 0.5 * contrast.abs() {
+            // A fifth of the disc's contrast: a black board on shadowed
+            // ground differs from it by far less than from a white disc.
+            if (v - board).abs() > (0.2 * contrast.abs()).max(1.5 * MIN_CONTRAST) {
                 away += 1;
                 if away == 2 {
                     ends.push((d.0 * (s - 1.0 / len), d.1 * (s - 1.0 / len)));
@@ -382,8 +417,11 @@ fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Option<[f64; 3]>
             s += 1.0 / len;
         }
     }
-    if (uniform as f64) < 0.8 * n as f64 || (ends.len() as f64) < 0.6 * n as f64 {
-        return None;
+    if (uniform as f64) < 0.8 * n as f64 {
+        return Err("board not uniform");
+    }
+    if (ends.len() as f64) < 0.6 * n as f64 {
+        return Err("board does not end");
     }
     // Square fit: half-side estimates from each end point for every
     // orientation; keep the orientation with most agreeing points.
@@ -415,7 +453,7 @@ fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Option<[f64; 3]>
         && spread >= 1.2
         && (BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio);
     if !square {
-        return None;
+        return Err("board not square");
     }
     // One line per side from the end points away from the corners.
     let psi = best.2;
@@ -431,13 +469,71 @@ fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Option<[f64; 3]>
     let mut lines = [[0.0; 3]; 4];
     for (k, side) in sides.iter().enumerate() {
         if side.len() < 4 {
-            return None;
+            return Err("board side");
         }
-        let (p, d) = super::refine::fit_line(side)?;
+        let rough = super::refine::fit_line(side).ok_or("board side")?;
+        let (p, d) = board_side(img, e, rough, side, polarity).ok_or("board side")?;
         lines[k] = cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]);
     }
     let (v1, v2) = (cross3(lines[0], lines[2]), cross3(lines[1], lines[3]));
-    Some(cross3(v1, v2))
+    Ok(cross3(v1, v2))
+}
+
+/// One side of a disc's board to subpixel precision: from the pixel-level
+/// line `rough` through the board's end points `ends` (relative to the
+/// disc's centre), profiles across the side every pixel along its middle
+/// give midpoint crossings between the board's level and the ground's, and
+/// a line is fitted through them, outliers left out.
+fn board_side(
+    img: &GreyView,
+    e: &Ellipse,
+    rough: (Pt, Pt),
+    ends: &[Pt],
+    polarity: f64,
+) -> Option<(Pt, Pt)> {
+    let ((px, py), d) = rough;
+    // Outward normal: away from the disc's centre (the origin here).
+    let mut n = (-d.1, d.0);
+    if n.0 * px + n.1 * py < 0.0 {
+        n = (-n.0, -n.1);
+    }
+    let along: Vec<f64> = ends
+        .iter()
+        .map(|q| (q.0 - px) * d.0 + (q.1 - py) * d.1)
+        .collect();
+    let (lo, hi) = along
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), &t| (a.min(t), b.max(t)));
+    let half = (0.25 * e.radius()).clamp(3.0, 10.0);
+    let mut points = Vec::new();
+    let mut profile = Vec::new();
+    let mut t = lo;
+    while t <= hi {
+        let base = (e.c.0 + px + d.0 * t, e.c.1 + py + d.1 * t);
+        if pr::line(img, base, n, half, &mut profile).is_some() {
+            let k = (profile.len() / 4).max(1);
+            let (board, ground) = (
+                pr::mean(&profile, 0, k),
+                pr::mean(&profile, profile.len() - k, profile.len()),
+            );
+            // A white board is lighter than its ground (polarity < 0 means
+            // the disc is lighter than its board).
+            let rising = ground > board;
+            let expected = if polarity > 0.0 { !rising } else { rising };
+            if (ground - board).abs() >= MIN_CONTRAST && expected {
+                let centre = half / pr::STEP_PX;
+                if let Some(x) = pr::crossing(&profile, (board + ground) / 2.0, rising, centre) {
+                    let s = pr::offset(x, half);
+                    points.push((px + d.0 * t + n.0 * s, py + d.1 * t + n.1 * s));
+                }
+            }
+        }
+        t += 1.0;
+    }
+    if points.len() < 6 {
+        return None;
+    }
+    pr::robust_line(&points).map(|(l, _)| l)
 }
 
 fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

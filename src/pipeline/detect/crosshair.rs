@@ -22,23 +22,22 @@ use std::f64::consts::{PI, TAU};
 use opencv::core::Mat;
 use opencv::prelude::*;
 
-use super::blobs::{self, Blob};
 use super::fiducial::grey_view;
 use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
+use super::harmonic::{self, Candidate, RingBasis, Symmetry};
 use super::profile::{self as pr, add, perp, unit};
 use super::refine::{fit_line, intersect, GreyView};
 use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Ring samples: 2.8 degrees apart.
 const RING_SAMPLES: usize = 128;
-/// Added before taking logarithms of grey levels, so sensor noise near
-/// black does not swing the log.
-const LOG_OFFSET: f64 = 10.0;
+/// Ring samples when refining a candidate's centre and size.
+const RESPONSE_SAMPLES: usize = 64;
 /// Fewest grey levels between a target's dark and light parts.
 const MIN_CONTRAST: f64 = 15.0;
 /// Candidates closer than this fraction of their size are one candidate.
-const SAME_CANDIDATE: f64 = 0.12;
+const SAME_CANDIDATE: f64 = 0.05;
 /// Fraction of an arm's profiles that must give an edge or bar centre.
 const MIN_COVERAGE: f64 = 0.6;
 /// Arms of one target may differ this much in length (perspective, shadow).
@@ -80,50 +79,77 @@ struct Arm {
 /// Detector of crosses and checkers within a size range.
 pub struct CrosshairDetector {
     sizes: SizeRange,
-    mask: Mat,
+    /// Sample directions of the rings that classify a candidate.
+    ring_basis: RingBasis,
+    /// ... and of those that refine its centre and size.
+    response_basis: RingBasis,
 }
 
 impl CrosshairDetector {
     pub fn new(sizes: SizeRange) -> Self {
         CrosshairDetector {
             sizes,
-            mask: Mat::default(),
+            ring_basis: RingBasis::new(RING_SAMPLES),
+            response_basis: RingBasis::new(RESPONSE_SAMPLES),
         }
     }
 
-    /// Candidate centres with a size guess from one polarity's regions.
-    fn candidates(&self, blobs: &[Blob]) -> Vec<(Pt, f64)> {
-        let mut regions: Vec<&Blob> = blobs.iter().filter(|b| !b.hole).collect();
-        regions.sort_by(|a, b| a.centre.0.total_cmp(&b.centre.0));
-        let mut out: Vec<(Pt, f64)> = Vec::new();
-        for (i, a) in regions.iter().enumerate() {
-            let sa = a.area.sqrt();
-            // A checker whose regions quadrants touch: one bow-tie blob.
-            out.push((a.centre, (2.0 * a.area).sqrt()));
-            for b in &regions[i + 1..] {
-                if b.centre.0 - a.centre.0 > 2.6 * sa * 1.7 {
-                    break;
+    /// A candidate's centre and size at full resolution: the position
+    /// within its pyramid pixel where the ring response peaks, then the
+    /// radius beyond which it fades (the target's edge).
+    fn refine_start(&self, img: &GreyView, c: &Candidate, lut: &[f64; 256]) -> Option<(Pt, f64)> {
+        let eval = |p: Pt, r: f64| -> Option<f64> {
+            let ring = pr::ring(img, p, r, &self.response_basis)?;
+            let logs: Vec<f64> = ring.iter().map(|v| log_of(lut, *v)).collect();
+            Some(harmonic::score(
+                c.symmetry,
+                self.response_basis.response(&logs),
+            ))
+        };
+        let search = |centre: Pt, r: f64, reach: f64, step: f64| -> Option<(Pt, f64)> {
+            let n = (reach / step).round() as i32;
+            let mut best: Option<(Pt, f64)> = None;
+            for j in -n..=n {
+                for i in -n..=n {
+                    let p = (centre.0 + i as f64 * step, centre.1 + j as f64 * step);
+                    if let Some(v) = eval(p, r) {
+                        if best.is_none_or(|(_, b)| v > b) {
+                            best = Some((p, v));
+                        }
+                    }
                 }
-                let sb = b.area.sqrt();
-                let ratio = sa / sb;
-                if !(0.6..=1.7).contains(&ratio) {
-                    continue;
-                }
-                let s = (sa + sb) / 2.0;
-                let d = geometry::dist(a.centre, b.centre);
-                // Diagonal quadrants: d = (q + bar) * sqrt 2, bar in 0..0.6 q.
-                if !(1.15 * s..=2.6 * s).contains(&d) {
-                    continue;
-                }
-                let mid = (
-                    (a.centre.0 + b.centre.0) / 2.0,
-                    (a.centre.1 + b.centre.1) / 2.0,
-                );
-                out.push((mid, s + d / std::f64::consts::SQRT_2));
             }
+            best
+        };
+        let r0 = (harmonic::RING_TO_SIZE * c.size).max(3.0);
+        let (centre, _) = search(c.centre, r0, c.scale.max(1.0), (c.scale / 4.0).max(0.5))?;
+        // Radius scan: the response holds while the ring is on the target.
+        let mut scores = Vec::new();
+        let mut r = (0.12 * c.size).max(3.0);
+        while r <= 0.9 * c.size {
+            scores.push((r, eval(centre, r).unwrap_or(f64::MIN)));
+            r += (0.03 * c.size).max(1.0);
         }
-        out.retain(|(_, s)| *s >= 0.7 * self.sizes.min_px && *s <= 1.4 * self.sizes.max_px);
-        out
+        let (k_peak, &(_, peak)) = scores
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1 .1.total_cmp(&b.1 .1))?;
+        if peak < harmonic::MIN_SCORE {
+            return None;
+        }
+        let r_end = scores[k_peak..]
+            .iter()
+            .find(|(_, v)| *v < 0.5 * peak)
+            .map_or(0.9 * c.size, |(r, _)| *r);
+        // A checker's quadrants reach past the edge's middle at the
+        // diagonals; a cross's bars end at it.
+        let size = match c.symmetry {
+            Symmetry::Checker => 2.0 * r_end / 1.25,
+            Symmetry::Cross => 2.0 * r_end,
+        };
+        let r1 = (harmonic::RING_TO_SIZE * size).max(3.0);
+        let (centre, _) = search(centre, r1, 1.0, 0.5)?;
+        Some((centre, size))
     }
 
     fn analyse(&self, img: &GreyView, start: Pt, size_guess: f64) -> Result<Found, &'static str> {
@@ -131,10 +157,13 @@ impl CrosshairDetector {
         if r1 < 3.0 {
             return Err("too small");
         }
-        let ring1 = pr::ring(img, start, r1, RING_SAMPLES).ok_or("inner ring")?;
-        let p1 = classify_ring(&ring1).ok_or("inner ring")?;
-        let p2 = classify_ring(&pr::ring(img, start, r2, RING_SAMPLES).ok_or("outer ring")?)
-            .ok_or("outer ring")?;
+        let ring1 = pr::ring(img, start, r1, &self.ring_basis).ok_or("inner ring")?;
+        let p1 = classify_ring(&self.ring_basis, &ring1).ok_or("inner ring")?;
+        let p2 = classify_ring(
+            &self.ring_basis,
+            &pr::ring(img, start, r2, &self.ring_basis).ok_or("outer ring")?,
+        )
+        .ok_or("outer ring")?;
         if p1.kind != p2.kind {
             return Err("rings disagree");
         }
@@ -179,9 +208,11 @@ impl CrosshairDetector {
         dirs = fit.dirs;
         bar = fit.bar.unwrap_or(bar);
         let max_reach = 0.75 * self.sizes.max_px;
-        // Every arm must end: a grid or paving runs on. (Letting one arm run
-        // on, for a path or shadow edge past the target, raised recall by 4
-        // points and let panel grids through.)
+        // The arms end: a grid or paving runs on. One arm may meet something
+        // lying against the target (a path, an object, a shadow's edge); the
+        // checks below (grid lines around a cross, uniform checker
+        // quadrants) tell that from a grid's or paving's junction.
+        let mut runs_on: Option<(usize, Option<Arm>)> = None;
         for (k, arm) in arms.iter_mut().enumerate() {
             let dir = arm_dir(&dirs, k);
             match measure_arm(
@@ -195,9 +226,23 @@ impl CrosshairDetector {
                 max_reach,
             ) {
                 ArmEnd::Ends(a) => *arm = a,
-                ArmEnd::RunsOn => return Err("structure runs on"),
+                ArmEnd::RunsOn(a) => {
+                    if runs_on.is_some() || kind == Kind::Checker {
+                        return Err("structure runs on");
+                    }
+                    runs_on = Some((k, a));
+                }
+                ArmEnd::Flips => return Err("paving"),
                 ArmEnd::Unknown => return Err("arm leaves the tile"),
             }
+        }
+        if let Some((k, a)) = runs_on {
+            // As far as its own structure went, or else as the opposite arm.
+            let opposite = arms[(k + 2) % 4];
+            arms[k] = a.unwrap_or(Arm {
+                polarity: arms[k].polarity,
+                ..opposite
+            });
         }
         for _ in 0..2 {
             fit = fit_lines(img, kind, centre, dirs, &arms, bar).ok_or("fit")?;
@@ -214,16 +259,25 @@ impl CrosshairDetector {
         let size = lengths.iter().sum::<f64>() / 2.0;
         let strength = arms.iter().map(|a| a.strength).fold(f64::MAX, f64::min);
         let cos = (dirs[0].0 * dirs[1].0 + dirs[0].1 * dirs[1].1).abs();
-        if lmax / lmin > MAX_ARM_RATIO
-            || !self.sizes.accepts(size)
-            || cos > (35f64).to_radians().sin()
-            || geometry::dist(centre, start) > 0.3 * size
-            || fit.coverage < MIN_COVERAGE
-            || fit.rms > MAX_FIT_RMS_PX + 0.005 * size
-        {
-            return Err("structure check");
+        if lmax / lmin > MAX_ARM_RATIO {
+            return Err("arm lengths differ");
         }
-        let quadrants = quadrant_levels(img, centre, &dirs, &lengths).ok_or("structure check")?;
+        if !self.sizes.accepts(size) {
+            return Err("size");
+        }
+        if cos > (35f64).to_radians().sin() {
+            return Err("arms not square");
+        }
+        if geometry::dist(centre, start) > 0.3 * size {
+            return Err("centre moved");
+        }
+        if fit.coverage < MIN_COVERAGE {
+            return Err("edge coverage");
+        }
+        if fit.rms > MAX_FIT_RMS_PX + 0.005 * size {
+            return Err("fit rms");
+        }
+        let quadrants = quadrant_levels(img, centre, &dirs, &lengths).ok_or("quadrants")?;
         match kind {
             Kind::Cross => {
                 // A printed bar keeps its width; the zig-zag "bars" along a
@@ -233,7 +287,7 @@ impl CrosshairDetector {
                     pr::quantile(&fit.widths, 0.9),
                 );
                 if w90 - w10 > 0.5 * bar {
-                    return Err("structure check");
+                    return Err("bar width varies");
                 }
                 // The bars' crossing is bright (a dark tile amid paving is not).
                 let middle = img.sample(centre.0, centre.1).ok_or("centre")?;
@@ -244,12 +298,18 @@ impl CrosshairDetector {
                 if !quadrants_are_dark(img, centre, &dirs, &lengths, bar, strength) {
                     return Err("quadrants");
                 }
+                if grid_lines_around(img, centre, &dirs, &lengths, bar, strength) >= 3 {
+                    return Err("grid lines around");
+                }
                 let ratio = size / 2.0 / bar;
                 let (lo, hi) = quadrants
                     .iter()
                     .fold((f64::MAX, f64::MIN), |(a, b), &q| (a.min(q), b.max(q)));
-                if !(ARM_TO_BAR.0..=ARM_TO_BAR.1).contains(&ratio) || hi - lo > 0.6 * strength {
-                    return Err("structure check");
+                if !(ARM_TO_BAR.0..=ARM_TO_BAR.1).contains(&ratio) {
+                    return Err("bar ratio");
+                }
+                if hi - lo > 0.6 * strength {
+                    return Err("quadrant levels differ");
                 }
             }
             Kind::Checker => {
@@ -261,17 +321,30 @@ impl CrosshairDetector {
                 if !(a_lo - b_hi >= 0.4 * MIN_CONTRAST || b_lo - a_hi >= 0.4 * MIN_CONTRAST) {
                     return Err("quadrants do not alternate");
                 }
+                if !checker_quadrants_uniform(img, centre, &dirs, &lengths, strength) {
+                    return Err("quadrants not uniform");
+                }
             }
         }
         let confidence = (fit.coverage
             * (1.0 / (1.0 + (fit.rms / 0.25).powi(2)))
             * (strength / 40.0).clamp(0.0, 1.0)
-            * (1.0 - (lmax / lmin - 1.0) / (MAX_ARM_RATIO - 1.0) * 0.5))
-            .powf(0.25);
+            * (1.0 - (lmax / lmin - 1.0) / (MAX_ARM_RATIO - 1.0) * 0.5)
+            * if runs_on.is_some() { 0.7 } else { 1.0 })
+        .powf(0.25);
         let corners: [Pt; 4] = std::array::from_fn(|k| {
             let (a, b) = (arm_dir(&dirs, k), arm_dir(&dirs, (k + 1) % 4));
             add(add(centre, a, lengths[k]), b, lengths[(k + 1) % 4])
         });
+        tracing::trace!(
+            x = centre.0,
+            y = centre.1,
+            kind = ?kind,
+            lengths = ?lengths,
+            bar,
+            strength,
+            "crosshair candidate accepted"
+        );
         Ok(Found {
             centre,
             corners,
@@ -295,25 +368,28 @@ impl Detector for CrosshairDetector {
         seams: [bool; 4],
     ) -> Result<Vec<Detection>, DetectError> {
         let err = DetectError::at(origin);
-        // Quadrants of a cross are ~0.4 of the side; a checker's merged dark
-        // quadrants are half its area.
-        let area = (
-            (0.25 * self.sizes.min_px).powi(2),
-            (0.75 * self.sizes.max_px).powi(2),
-        );
-        let mut candidates = Vec::new();
-        for polarity in [blobs::Polarity::Dark, blobs::Polarity::Bright] {
-            let blobs = blobs::find_blobs(tile, polarity, area, &mut self.mask).map_err(err)?;
-            candidates.extend(self.candidates(&blobs));
-        }
-        candidates.sort_by(|a, b| {
-            (a.0 .1, a.0 .0)
-                .partial_cmp(&(b.0 .1, b.0 .0))
-                .expect("finite")
-        });
-        let candidates = dedup_points(candidates, SAME_CANDIDATE);
+        let candidates = harmonic::candidates(tile, self.sizes).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
-        let mut found: Vec<Found> = candidates
+        let lut = harmonic::log_table();
+        // Strongest first, so a target's best start survives the merging.
+        let mut ranked: Vec<(f64, Pt, f64)> = candidates
+            .iter()
+            .filter_map(|c| {
+                self.refine_start(&img, c, &lut)
+                    .map(|(p, s)| (c.score, p, s))
+            })
+            .filter(|(_, _, s)| *s >= 0.7 * self.sizes.min_px && *s <= 1.4 * self.sizes.max_px)
+            .collect();
+        ranked.sort_by(|a, b| {
+            b.0.total_cmp(&a.0)
+                .then(a.1 .1.total_cmp(&b.1 .1))
+                .then(a.1 .0.total_cmp(&b.1 .0))
+        });
+        let starts = dedup_points(
+            ranked.into_iter().map(|(_, p, s)| (p, s)).collect(),
+            SAME_CANDIDATE,
+        );
+        let mut found: Vec<Found> = starts
             .into_iter()
             .filter_map(|(c, s)| match self.analyse(&img, c, s) {
                 Ok(f) => Some(f),
@@ -364,98 +440,157 @@ fn dedup_points(points: Vec<(Pt, f64)>, fraction: f64) -> Vec<(Pt, f64)> {
     kept
 }
 
+/// Grey level to natural log through the table of [`harmonic::log_table`]
+/// (bilinear samples are fractional: interpolated between entries).
+fn log_of(lut: &[f64; 256], v: f64) -> f64 {
+    let v = v.clamp(0.0, 255.0);
+    let i = (v as usize).min(254);
+    let f = v - i as f64;
+    lut[i] * (1.0 - f) + lut[i + 1] * f
+}
+
 /// Classifies a ring of samples: four alternating quadrants (checker) or
-/// four narrow bright arcs on dark (cross).
-fn classify_ring(v: &[f64]) -> Option<RingPattern> {
+/// four narrow bright arcs on dark (cross), and finds the arms.
+///
+/// In log intensity (a shadow is an offset) the ring's 2nd or 4th harmonic
+/// predicts where the quadrant boundaries or bars are; each is then found
+/// locally, within 25 degrees of the prediction (perspective skews the
+/// angles), and checked on its own: a boundary steps the expected way, a bar
+/// stands above the dark on both its sides. A shadow edge across the ring
+/// changes levels between arms, not these local contrasts.
+fn classify_ring(basis: &RingBasis, v: &[f64]) -> Option<RingPattern> {
     let (lo, hi) = (pr::quantile(v, 0.1), pr::quantile(v, 0.9));
     if hi - lo < MIN_CONTRAST {
         return None;
     }
     let n = v.len();
-    // Classified in log intensity, where a shadow is an offset rather than a
-    // factor: a white quadrant in shadow still reads light. A [1 2 1]
-    // smoothing and a hysteresis band keep noise near the middle level from
-    // adding transitions; each one is placed where the smoothed ring last
-    // crossed the middle before leaving the band.
-    let log = |x: f64| (x + LOG_OFFSET).ln();
-    let v: Vec<f64> = (0..n)
-        .map(|i| log((v[(i + n - 1) % n] + 2.0 * v[i] + v[(i + 1) % n]) / 4.0))
+    let lut = harmonic::log_table();
+    // [1 2 1] smoothing against noise.
+    let lv: Vec<f64> = (0..n)
+        .map(|i| {
+            log_of(
+                &lut,
+                (v[(i + n - 1) % n] + 2.0 * v[i] + v[(i + 1) % n]) / 4.0,
+            )
+        })
         .collect();
-    let (lo, hi) = (log(lo), log(hi));
-    let m = (lo + hi) / 2.0;
-    let band = 0.15 * (hi - lo);
-    let start = (0..n).find(|&i| (v[i] - m).abs() > band)?;
-    let mut high = v[start] > m;
-    let mut tr: Vec<(f64, bool)> = Vec::new();
-    for step in 1..=n {
-        let i = (start + step) % n;
-        let flips = if high {
-            v[i] < m - band
-        } else {
-            v[i] > m + band
-        };
-        if !flips {
-            continue;
-        }
-        // Walk back to the middle crossing.
-        let mut j = i;
-        for _ in 0..n {
-            let prev = (j + n - 1) % n;
-            if (v[prev] > m) == high {
-                break;
-            }
-            j = prev;
-        }
-        let prev = (j + n - 1) % n;
-        let (a, b) = (v[prev], v[j]);
-        let idx = (prev as f64 + (m - a) / (b - a)).rem_euclid(n as f64);
-        high = !high;
-        tr.push((idx * TAU / n as f64, high));
-    }
-    tr.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let span = |k: usize| (tr[(k + 1) % tr.len()].0 - tr[k].0).rem_euclid(TAU);
+    let response = basis.response(&lv);
+    let symmetry = if harmonic::score(Symmetry::Checker, response) >= harmonic::MIN_SCORE {
+        Symmetry::Checker
+    } else if harmonic::score(Symmetry::Cross, response) >= harmonic::MIN_SCORE {
+        Symmetry::Cross
+    } else {
+        return None;
+    };
+    let step = TAU / n as f64;
+    let at = |a: f64| lv[((a / step).round() as i64).rem_euclid(n as i64) as usize];
+    // Mean of the ring over angles [a, b].
+    let mean = |a: f64, b: f64| {
+        let k = ((b - a) / step).round().max(1.0) as usize;
+        (0..=k).map(|j| at(a + j as f64 * step)).sum::<f64>() / (k + 1) as f64
+    };
+    let window = 25f64.to_radians();
     let deg = |d: f64| d.to_radians();
-    match tr.len() {
-        4 => {
-            if (0..4).all(|k| (deg(35.0)..=deg(145.0)).contains(&span(k))) {
-                Some(RingPattern {
-                    kind: Kind::Checker,
-                    arms: [tr[0].0, tr[1].0, tr[2].0, tr[3].0],
-                    bar_rad: 0.0,
-                })
-            } else {
-                None
-            }
-        }
-        8 => {
-            let mut arms = Vec::with_capacity(4);
-            let mut bright = 0.0;
-            for (k, &(angle, rising)) in tr.iter().enumerate() {
-                let s = span(k);
-                if rising {
-                    // A bright arc, from a rising to a falling transition
-                    // (a bar of 0.3 of the side spans 60° at 0.3 of the side).
-                    if s > deg(100.0) {
-                        return None;
-                    }
-                    arms.push((angle + s / 2.0).rem_euclid(TAU));
-                    bright += s / 4.0;
-                } else if s < deg(15.0) {
+    match symmetry {
+        Symmetry::Checker => {
+            // lv ~ m + a cos(2(theta - phi/2)): light at phi/2, boundaries
+            // 45 degrees either side, falling first (counter-clockwise).
+            let light = basis.phase(2, &lv) / 2.0;
+            let mut arms = [0.0; 4];
+            for (k, arm) in arms.iter_mut().enumerate() {
+                let predicted = light + PI / 4.0 + k as f64 * PI / 2.0;
+                let sign = if k % 2 == 0 { -1.0 } else { 1.0 };
+                // Steepest expected-sign slope within the window.
+                let m = (window / step).round() as i64;
+                let slope = |j: i64| {
+                    let a = predicted + j as f64 * step;
+                    sign * (at(a + step) - at(a - step))
+                };
+                let best = (-m..=m).max_by(|&a, &b| slope(a).total_cmp(&slope(b)))?;
+                let (y0, y1, y2) = (slope(best - 1), slope(best), slope(best + 1));
+                let d = y0 - 2.0 * y1 + y2;
+                let frac = if d < 0.0 {
+                    (0.5 * (y0 - y2) / d).clamp(-0.5, 0.5)
+                } else {
+                    0.0
+                };
+                let a = predicted + (best as f64 + frac) * step;
+                // Local step across the boundary, 5-20 degrees either side.
+                let contrast =
+                    sign * (mean(a + deg(5.0), a + deg(20.0)) - mean(a - deg(20.0), a - deg(5.0)));
+                if contrast < harmonic::MIN_SCORE {
                     return None;
                 }
+                *arm = a.rem_euclid(TAU);
+            }
+            let mut sorted = arms;
+            sorted.sort_by(f64::total_cmp);
+            let spans_ok = (0..4).all(|k| {
+                let g = (sorted[(k + 1) % 4] - sorted[k]).rem_euclid(TAU);
+                (deg(35.0)..=deg(145.0)).contains(&g)
+            });
+            spans_ok.then_some(RingPattern {
+                kind: Kind::Checker,
+                arms: sorted,
+                bar_rad: 0.0,
+            })
+        }
+        Symmetry::Cross => {
+            let bar0 = basis.phase(4, &lv) / 4.0;
+            let m = (window / step).round() as i64;
+            let mut arms = Vec::with_capacity(4);
+            let mut width = 0.0;
+            for k in 0..4 {
+                let predicted = bar0 + k as f64 * PI / 2.0;
+                let best = (-m..=m).max_by(|&a, &b| {
+                    at(predicted + a as f64 * step).total_cmp(&at(predicted + b as f64 * step))
+                })?;
+                let peak_a = predicted + best as f64 * step;
+                let peak = at(peak_a);
+                // The dark quadrants on either side: the lowest level within
+                // 60 degrees.
+                let side = |dir: f64| {
+                    (1..=(deg(60.0) / step) as i64)
+                        .map(|j| at(peak_a + dir * j as f64 * step))
+                        .fold(f64::MAX, f64::min)
+                };
+                let (left, right) = (side(-1.0), side(1.0));
+                if peak - left.max(right) < harmonic::MIN_SCORE {
+                    return None;
+                }
+                // Half-level crossings on each side give the bar's centre.
+                let edge = |dir: f64, dark: f64| {
+                    let level = (peak + dark) / 2.0;
+                    let mut prev = peak;
+                    for j in 1..=(deg(60.0) / step) as i64 {
+                        let x = at(peak_a + dir * j as f64 * step);
+                        if x < level {
+                            let f = (prev - level) / (prev - x);
+                            return Some(peak_a + dir * (j as f64 - 1.0 + f) * step);
+                        }
+                        prev = x;
+                    }
+                    None
+                };
+                let (a0, a1) = (edge(-1.0, left)?, edge(1.0, right)?);
+                if a1 - a0 > deg(100.0) {
+                    return None;
+                }
+                width += (a1 - a0) / 4.0;
+                arms.push(((a0 + a1) / 2.0).rem_euclid(TAU));
             }
             arms.sort_by(f64::total_cmp);
             let gaps_ok = (0..4).all(|k| {
                 let g = (arms[(k + 1) % 4] - arms[k]).rem_euclid(TAU);
-                (deg(50.0)..=deg(130.0)).contains(&g)
+                // Dark between bars: at least 15 degrees of it.
+                (deg(50.0)..=deg(130.0)).contains(&g) && g - width >= deg(15.0)
             });
             gaps_ok.then(|| RingPattern {
                 kind: Kind::Cross,
                 arms: [arms[0], arms[1], arms[2], arms[3]],
-                bar_rad: bright,
+                bar_rad: width,
             })
         }
-        _ => None,
     }
 }
 
@@ -516,8 +651,12 @@ fn checker_polarity(img: &GreyView, c: Pt, a: Pt, t: f64) -> Option<f64> {
 
 enum ArmEnd {
     Ends(Arm),
-    /// The structure continues past any target size: a grid, paving, road.
-    RunsOn,
+    /// The structure continues past the arm's end (with the arm as far as
+    /// its own structure went, if it ended at all): a grid, paving, a road,
+    /// or something lying against the target.
+    RunsOn(Option<Arm>),
+    /// A checker's boundary continues with the colours swapped: paving.
+    Flips,
     /// The arm leaves the tile before it can be judged.
     Unknown,
 }
@@ -599,33 +738,65 @@ fn measure_arm(
         t += 1.0;
     }
     let Some(length) = length else {
-        return ArmEnd::RunsOn;
+        return ArmEnd::RunsOn(None);
     };
-    // Beyond the end: ground, not more of the same pattern (either polarity
-    // for a checker: paving flips colours at each tile).
-    // From a gap past the end (a panel grid's cross line or a blurred square
-    // edge must not count) out to twice the arm.
-    let (from, to) = (length + (0.3 * length).max(3.0), 2.0 * length.max(6.0));
+    let arm = Arm {
+        length: length + 0.5,
+        strength,
+        polarity,
+    };
+    // Beyond the end: ground, not more of the same pattern. From a gap past
+    // the end (a panel grid's cross line or a blurred square edge must not
+    // count), for 0.6 of the arm: a repeating pattern continues right after
+    // the gap; something else beside the target (a path, a car, a stripe)
+    // further out does not make it part of a pattern.
+    let from = length + (0.3 * length).max(3.0);
+    let to = from + (0.6 * length).max(6.0);
     let mut active = 0;
+    let mut flipped = 0;
     let mut total = 0;
     let mut t = from;
     while t <= to {
         let Some(f) = feature(img, kind, c, a, t, o, polarity) else {
             break;
         };
-        // Either sign: a dark bar between light sides continues a pattern too.
-        active += (f.abs() >= 0.5 * strength) as usize;
+        // A cross's bar continues as a bright bar (a grid line); a checker's
+        // boundary continues as the same edge (a long straight edge) or, in
+        // paving, flipped at the tile corner, often fainter than the
+        // junction measured near the centre.
+        let continues = match kind {
+            Kind::Cross => f >= 0.5 * strength,
+            Kind::Checker => f >= 0.5 * strength || f <= -0.35 * strength,
+        };
+        active += continues as usize;
+        flipped += (kind == Kind::Checker && f <= -0.35 * strength) as usize;
         total += 1;
         t += 1.0;
     }
-    if total > 0 && active * 2 > total {
-        return ArmEnd::RunsOn;
+    if total > 0 && flipped * 2 > total {
+        // Paving continues the boundary on the arm's own line; an edge of
+        // something else crosses the profiles wherever it happens to lie.
+        let (mut aligned, mut tried) = (0, 0);
+        let mut profile = Vec::new();
+        let mut t = from;
+        while t <= to {
+            tried += 1;
+            if pr::line(img, add(c, a, t), perp(a), o, &mut profile).is_some() {
+                if let Some((s, _)) = edge_offset(&profile, o, -polarity, 0.7 * strength) {
+                    aligned += (s.abs() <= (0.05 * length).max(1.0)) as usize;
+                }
+            }
+            t += 1.0;
+        }
+        if aligned * 2 > tried {
+            return ArmEnd::Flips;
+        }
+        return ArmEnd::RunsOn(Some(arm));
     }
-    ArmEnd::Ends(Arm {
-        length: length + 0.5,
-        strength,
-        polarity,
-    })
+    if total > 0 && active * 2 > total {
+        return ArmEnd::RunsOn(Some(arm));
+    }
+    ArmEnd::Ends(arm)
 }
 
 /// Result of fitting the two centre lines.
@@ -698,8 +869,9 @@ fn fit_lines(
         if points.len() < 6 {
             return None;
         }
-        let fitted = fit_line(&points)?;
-        rms = rms.max(pr::line_rms(&points, fitted));
+        let (fitted, inliers) = pr::robust_line(&points)?;
+        rms = rms.max(pr::line_rms(&inliers, fitted));
+        coverage = coverage.min(inliers.len() as f64 / points.len() as f64 / MIN_COVERAGE * 0.8);
         *line = (fitted.0, orient(fitted.1, dirs[li]));
     }
     let centre = intersect(lines[0], lines[1])?;
@@ -715,23 +887,25 @@ fn fit_lines(
 }
 
 /// Centre offset and width of a bright bar across a profile (dark on both
-/// ends): the midpoint of its rising and falling midpoint crossings.
+/// ends): the midpoint of its rising and falling midpoint crossings, each at
+/// the middle of its own dark side and the bar (a shadow edge crossing the
+/// profile in a dark part shifts neither).
 fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Option<f64>)> {
     let k = (p.len() / 7).max(1);
-    let dark = (pr::mean(p, 0, k) + pr::mean(p, p.len() - k, p.len())) / 2.0;
+    let (left, right) = (pr::mean(p, 0, k), pr::mean(p, p.len() - k, p.len()));
     let mid = p.len() / 2;
     let span = ((bar / 2.0) / pr::STEP_PX) as usize;
     let bright = p[mid.saturating_sub(span / 2)..(mid + span / 2 + 1).min(p.len())]
         .iter()
         .fold(f64::MIN, |a, &b| a.max(b));
-    if bright - dark < 0.5 * strength {
+    // 0.35: a shadow dims a bar to 0.55 of the strength measured outside it.
+    if bright - left.max(right) < 0.35 * strength {
         return None;
     }
-    let level = (dark + bright) / 2.0;
     let centre_idx = half / pr::STEP_PX;
     let w = bar / 2.0 / pr::STEP_PX;
-    let up = pr::crossing(p, level, true, centre_idx - w)?;
-    let down = pr::crossing(p, level, false, centre_idx + w)?;
+    let up = pr::crossing(p, (left + bright) / 2.0, true, centre_idx - w)?;
+    let down = pr::crossing(p, (right + bright) / 2.0, false, centre_idx + w)?;
     let width = (down - up) * pr::STEP_PX;
     if down <= up || !(0.5 * bar..=1.6 * bar).contains(&width) {
         return None;
@@ -744,7 +918,7 @@ fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Opt
 fn edge_offset(p: &[f64], half: f64, polarity: f64, strength: f64) -> Option<(f64, Option<f64>)> {
     let k = (p.len() / 5).max(1);
     let (first, last) = (pr::mean(p, 0, k), pr::mean(p, p.len() - k, p.len()));
-    if polarity * (last - first) < 0.5 * strength {
+    if polarity * (last - first) < 0.35 * strength {
         return None;
     }
     let level = (first + last) / 2.0;
@@ -786,6 +960,97 @@ fn quadrants_are_dark(
     total == 36 && dark >= 33
 }
 
+/// How many of the square's eight half-edges (each quadrant's two outer
+/// sides) are bright lines: brighter than both the quadrant inside and the
+/// ground beyond. A crossing of a panel grid or window frame is boxed in by
+/// such lines; a printed cross ends on plain ground.
+fn grid_lines_around(
+    img: &GreyView,
+    c: Pt,
+    dirs: &[Pt; 2],
+    lengths: &[f64; 4],
+    bar: f64,
+    strength: f64,
+) -> usize {
+    let o = (0.5 * bar).max(2.5);
+    let mut lines = 0;
+    for k in 0..4 {
+        let a = arm_dir(dirs, k);
+        // The two quadrants beside arm k's end: towards arm k+1 and k-1.
+        for side in [(k + 1) % 4, (k + 3) % 4] {
+            let b = arm_dir(dirs, side);
+            let (la, lb) = (lengths[k], lengths[side]);
+            let (mut bright, mut total) = (0, 0);
+            for f in [0.3, 0.45, 0.6, 0.75, 0.9] {
+                let v = bar / 2.0 + f * (lb - bar / 2.0);
+                let at = |u: f64| {
+                    let p = add(add(c, a, u), b, v);
+                    img.sample(p.0, p.1)
+                };
+                let line = la + bar / 2.0;
+                if let (Some(mid), Some(inside), Some(outside)) =
+                    (at(line), at(line - bar / 2.0 - o), at(line + bar / 2.0 + o))
+                {
+                    total += 1;
+                    bright += (mid - inside.max(outside) >= 0.4 * strength) as usize;
+                }
+            }
+            lines += (total == 5 && bright >= 3) as usize;
+        }
+    }
+    lines
+}
+
+/// A checker's quadrants are uniform out to its edge: on a 3x3 grid across
+/// each quadrant, a sample differs from its mirror image across the
+/// neighbouring arm (in the quadrant of the other colour) the same way as
+/// the quadrants do. A junction of unrelated regions (a paving corner by a
+/// road marking) has "quadrants" that change colour within the square.
+fn checker_quadrants_uniform(
+    img: &GreyView,
+    c: Pt,
+    dirs: &[Pt; 2],
+    lengths: &[f64; 4],
+    strength: f64,
+) -> bool {
+    let mut diffs = [[0.0; 9]; 4];
+    for (k, d) in diffs.iter_mut().enumerate() {
+        let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
+        let (la, lb) = (lengths[k], lengths[(k + 1) % 4]);
+        let inner = (0.12 * la).max(3.0);
+        for (i, (fu, fv)) in [0.25, 0.5, 0.8]
+            .iter()
+            .flat_map(|u| [0.25, 0.5, 0.8].map(|v| (*u, v)))
+            .enumerate()
+        {
+            let (u, v) = (
+                inner + (la - inner - 2.0) * fu,
+                inner + (lb - inner - 2.0) * fv,
+            );
+            let (p, q) = (add(add(c, a, u), b, v), add(add(c, a, u), b, -v));
+            match (img.sample(p.0, p.1), img.sample(q.0, q.1)) {
+                (Some(x), Some(y)) => d[i] = x - y,
+                _ => return false,
+            }
+        }
+    }
+    // Quadrants 0 and 2 share a colour; which one is light.
+    let sum: f64 = (0..4)
+        .map(|k| if k % 2 == 0 { 1.0 } else { -1.0 } * diffs[k].iter().sum::<f64>())
+        .sum();
+    let light0 = if sum >= 0.0 { 1.0 } else { -1.0 };
+    let passed = (0..4)
+        .map(|k| {
+            let sign = if k % 2 == 0 { light0 } else { -light0 };
+            diffs[k]
+                .iter()
+                .filter(|d| sign * **d >= 0.25 * strength)
+                .count()
+        })
+        .sum::<usize>();
+    passed >= 32
+}
+
 /// Mean grey level of each quadrant, between arm k and arm k+1, sampled on
 /// a small patch halfway along the bisector.
 fn quadrant_levels(img: &GreyView, c: Pt, dirs: &[Pt; 2], lengths: &[f64; 4]) -> Option<[f64; 4]> {
@@ -824,7 +1089,8 @@ mod tests {
                 30.0
             }
         });
-        let p = classify_ring(&checker).expect("checker");
+        let basis = RingBasis::new(RING_SAMPLES);
+        let p = classify_ring(&basis, &checker).expect("checker");
         assert_eq!(p.kind, Kind::Checker);
         let cross = ring_of(|a| {
             let d = ((a - 0.2).rem_euclid(PI / 2.0) - PI / 4.0).abs();
@@ -834,14 +1100,14 @@ mod tests {
                 20.0
             }
         });
-        let p = classify_ring(&cross).expect("cross");
+        let p = classify_ring(&basis, &cross).expect("cross");
         assert_eq!(p.kind, Kind::Cross);
         for (k, arm) in p.arms.iter().enumerate() {
             let want = 0.2 + k as f64 * PI / 2.0;
             assert!((arm - want).abs() < 0.03, "arm {k}: {arm} vs {want}");
         }
         // A plain edge (two halves) and a flat ring are neither.
-        assert!(classify_ring(&ring_of(|a| if a < PI { 200.0 } else { 30.0 })).is_none());
-        assert!(classify_ring(&ring_of(|_| 120.0)).is_none());
+        assert!(classify_ring(&basis, &ring_of(|a| if a < PI { 200.0 } else { 30.0 })).is_none());
+        assert!(classify_ring(&basis, &ring_of(|_| 120.0)).is_none());
     }
 }

@@ -10,6 +10,7 @@ mod crosshair;
 mod fiducial;
 mod found;
 pub mod geometry;
+mod harmonic;
 mod profile;
 pub mod refine;
 

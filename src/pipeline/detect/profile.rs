@@ -10,13 +10,13 @@ use super::refine::GreyView;
 /// Samples along a straight profile, in pixels.
 pub const STEP_PX: f64 = 0.25;
 
-/// `n` samples on a circle of radius `r` around `c`, counter-clockwise in
-/// image axes from +x; None when the circle leaves the tile.
-pub fn ring(img: &GreyView, c: Pt, r: f64, n: usize) -> Option<Vec<f64>> {
-    (0..n)
+/// Samples on a circle of radius `r` around `c`, in the directions of
+/// `basis`; None when the circle leaves the tile.
+pub fn ring(img: &GreyView, c: Pt, r: f64, basis: &super::harmonic::RingBasis) -> Option<Vec<f64>> {
+    (0..basis.len())
         .map(|i| {
-            let a = std::f64::consts::TAU * i as f64 / n as f64;
-            img.sample(c.0 + r * a.cos(), c.1 + r * a.sin())
+            let (dx, dy) = basis.direction(i);
+            img.sample(c.0 + r * dx, c.1 + r * dy)
         })
         .collect()
 }
@@ -97,4 +97,24 @@ pub fn perp(a: Pt) -> Pt {
 
 pub fn add(p: Pt, d: Pt, t: f64) -> Pt {
     (p.0 + d.0 * t, p.1 + d.1 * t)
+}
+
+/// A line through `points` that ignores outliers (profiles a shadow edge or
+/// a blemish crossed): least squares, then again on the points within 2.5
+/// robust standard deviations (median absolute residual), at least 0.1 px.
+pub fn robust_line(points: &[Pt]) -> Option<((Pt, Pt), Vec<Pt>)> {
+    let first = super::refine::fit_line(points)?;
+    let residual = |p: &Pt, l: (Pt, Pt)| ((p.0 - l.0 .0) * l.1 .1 - (p.1 - l.0 .1) * l.1 .0).abs();
+    let r: Vec<f64> = points.iter().map(|p| residual(p, first)).collect();
+    let limit = (2.5 * 1.4826 * quantile(&r, 0.5)).max(0.1);
+    let inliers: Vec<Pt> = points
+        .iter()
+        .zip(&r)
+        .filter(|(_, r)| **r <= limit)
+        .map(|(p, _)| *p)
+        .collect();
+    if inliers.len() < 6 {
+        return None;
+    }
+    Some((super::refine::fit_line(&inliers)?, inliers))
 }

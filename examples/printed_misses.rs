@@ -1,0 +1,204 @@
+//! Development aid for the printed-target detectors: renders the frames of
+//! `tests/it/printed.rs`, runs the pipeline, and prints every missed target
+//! with its conditions and why the detector rejected the candidates near it.
+//!
+//!     cargo run --release --example printed_misses -- crosshair 300 4
+
+use std::collections::BTreeMap;
+use std::io::BufRead;
+use std::sync::Mutex;
+
+use gcp_tagger::pipeline::batch::{run_batch, BatchOptions, FrameInput};
+use gcp_tagger::pipeline::detect::{DetectorConfig, MarkerType};
+use gcp_tagger::pipeline::frame::FrameOptions;
+use gcp_tagger::pipeline::georef::TargetCrs;
+use gcp_tagger::synth::GreyImage;
+use gcp_tagger::synth::{clutter_scene, printed_scene, render, write_image, SampleFormat};
+
+/// Writes a 3x enlarged crop of `img` around `c` to /tmp/crops/`name`.png.
+fn crop(img: &GreyImage, c: (f64, f64), half: usize, name: &str) {
+    let x0 = (c.0 as i64 - half as i64).clamp(0, (img.width - 2 * half) as i64) as usize;
+    let y0 = (c.1 as i64 - half as i64).clamp(0, (img.height - 2 * half) as i64) as usize;
+    let side = 6 * half;
+    let mut data = vec![0f32; side * side];
+    for y in 0..side {
+        for x in 0..side {
+            data[y * side + x] = img.data[(y0 + y / 3) * img.width + x0 + x / 3];
+        }
+    }
+    // Mark the centre with a small plus of alternating grey.
+    let (cx, cy) = (
+        (3.0 * (c.0 - x0 as f64)) as i64,
+        (3.0 * (c.1 - y0 as f64)) as i64,
+    );
+    for d in -4i64..=4 {
+        for (x, y) in [(cx + d, cy), (cx, cy + d)] {
+            if (0..side as i64).contains(&x) && (0..side as i64).contains(&y) {
+                data[y as usize * side + x as usize] = if d % 2 == 0 { 1.0 } else { 0.0 };
+            }
+        }
+    }
+    let out = GreyImage {
+        width: side,
+        height: side,
+        data,
+    };
+    std::fs::create_dir_all("/tmp/crops").unwrap();
+    write_image(
+        std::path::Path::new(&format!("/tmp/crops/{name}.png")),
+        &out,
+        SampleFormat::Png,
+        None,
+    )
+    .unwrap();
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let clutter = args.get(1).is_some_and(|a| a == "clutter");
+    let mode: MarkerType = if clutter {
+        MarkerType::Crosshair
+    } else {
+        args.get(1).map_or("crosshair", |s| s).parse().unwrap()
+    };
+    let seed0: u64 = args.get(2).map_or(300, |s| s.parse().unwrap());
+    let frames: u64 = args.get(3).map_or(4, |s| s.parse().unwrap());
+    let dir = tempfile::tempdir().unwrap();
+    let log_path = dir.path().join("trace.json");
+    let log = std::fs::File::create(&log_path).unwrap();
+    tracing_subscriber::fmt()
+        .json()
+        .with_env_filter("gcp_tagger::pipeline::detect=trace")
+        .with_writer(Mutex::new(log))
+        .init();
+    let options = BatchOptions {
+        frame: FrameOptions {
+            detector: DetectorConfig {
+                modes: if clutter {
+                    vec![MarkerType::Crosshair, MarkerType::Circle]
+                } else {
+                    vec![mode]
+                },
+                min_target_px: 40.0,
+                ..DetectorConfig::default()
+            },
+            tile_size: 2048,
+            max_target_px: 200,
+            crs: TargetCrs::parse("EPSG:4326").unwrap(),
+        },
+        threads: 1,
+        max_ram_bytes: 2 << 30,
+    };
+    let (mut total, mut missed) = (0, 0);
+    for seed in seed0..seed0 + frames {
+        let scene = if clutter {
+            clutter_scene(2400, 1800, 700 + seed)
+        } else {
+            printed_scene(2400, 1800, 30, mode, (40.0, 120.0), seed)
+        };
+        let (img, truth) = render(&scene).unwrap();
+        let path = dir.path().join(format!("{mode}{seed}.png"));
+        write_image(&path, &img, SampleFormat::Png, None).unwrap();
+        std::fs::write(&log_path, b"").unwrap();
+        let input = FrameInput {
+            path: path.clone(),
+            name: "f".into(),
+        };
+        let result = run_batch(&[input], &options, &|_, _| {})
+            .pop()
+            .unwrap()
+            .unwrap();
+        let reasons: Vec<(f64, f64, f64, String)> =
+            std::io::BufReader::new(std::fs::File::open(&log_path).unwrap())
+                .lines()
+                .filter_map(|l| {
+                    let v: serde_json::Value = serde_json::from_str(&l.ok()?).ok()?;
+                    let f = &v["fields"];
+                    Some((
+                        f["x"].as_f64()?,
+                        f["y"].as_f64()?,
+                        f["size"].as_f64().unwrap_or(0.0),
+                        f["why"].as_str()?.to_string(),
+                    ))
+                })
+                .collect();
+        eprintln!(
+            "seed {seed}: blur {:.2} motion {:?} noise {:.1}",
+            scene.blur_sigma, scene.motion_blur, scene.noise_sigma
+        );
+        if clutter {
+            for l in std::fs::read_to_string(&log_path).unwrap().lines() {
+                if l.contains("accepted") {
+                    eprintln!("  {l}");
+                }
+            }
+            for (i, d) in result.targets.iter().enumerate() {
+                let d = &d.detection;
+                eprintln!(
+                    "  FP {} at ({:.1},{:.1}) size {:.1} confidence {:.2} rms {:?}",
+                    d.marker_type, d.center.0, d.center.1, d.size_px, d.confidence, d.fit_rms_px
+                );
+                crop(
+                    &img,
+                    d.center,
+                    (1.5 * d.size_px) as usize,
+                    &format!("fp{seed}_{i}"),
+                );
+            }
+        }
+        for t in &truth {
+            total += 1;
+            let hit = result.targets.iter().find(|d| {
+                let c = d.detection.center;
+                (c.0 - t.center.0).hypot(c.1 - t.center.1) < t.side_px / 2.0
+            });
+            let spec = &scene.printed[t.id as usize];
+            match hit {
+                Some(d) => {
+                    if std::env::var("RMS").is_ok() {
+                        eprintln!(
+                            "HIT rms {:.3} conf {:.2}",
+                            d.detection.fit_rms_px.unwrap_or(0.0),
+                            d.detection.confidence
+                        );
+                    }
+                    let c = d.detection.center;
+                    let e = (c.0 - t.center.0).hypot(c.1 - t.center.1);
+                    if e > 0.3 {
+                        eprintln!(
+                            "  imprecise {:?} size {:.0} err {e:.3} contrast {:.2} shadow {} persp {:.3} rms {:?}",
+                            spec.design, spec.size_px, spec.contrast, spec.shadow, spec.perspective, d.detection.fit_rms_px
+                        );
+                    }
+                }
+                None => {
+                    missed += 1;
+                    let mut why: BTreeMap<String, usize> = BTreeMap::new();
+                    let mut each = Vec::new();
+                    for (x, y, size, w) in &reasons {
+                        let d = (x - t.center.0).hypot(y - t.center.1);
+                        if d < t.side_px / 2.0 {
+                            *why.entry(w.clone()).or_default() += 1;
+                            if d < 0.08 * t.side_px {
+                                each.push(format!("{w} (off {d:.1}, size {size:.0})"));
+                            }
+                        }
+                    }
+
+                    eprintln!(
+                        "  MISS {:?} at ({:.0},{:.0}) size {:.0} rot {:.0} contrast {:.2} shadow {} persp {:.3}: {why:?}",
+                        spec.design, t.center.0, t.center.1, spec.size_px, spec.rotation_deg, spec.contrast, spec.shadow, spec.perspective
+                    );
+                    eprintln!("    near centre: {}", each.join("; "));
+                    crop(
+                        &img,
+                        t.center,
+                        (t.side_px as usize).max(20),
+                        &format!("miss{seed}_{}", t.id),
+                    );
+                }
+            }
+        }
+    }
+    eprintln!("{mode}: {} of {total} found", total - missed);
+}

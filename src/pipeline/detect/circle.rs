@@ -472,7 +472,9 @@ fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Result<[f64; 3],
             return Err("board side");
         }
         let rough = super::refine::fit_line(side).ok_or("board side")?;
-        let (p, d) = board_side(img, e, rough, side, polarity).ok_or("board side")?;
+        // Subpixel where the profiles allow (ground of enough contrast),
+        // else the pixel-level line.
+        let (p, d) = board_side(img, e, rough, side, polarity).unwrap_or(rough);
         lines[k] = cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]);
     }
     let (v1, v2) = (cross3(lines[0], lines[2]), cross3(lines[1], lines[3]));

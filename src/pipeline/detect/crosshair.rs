@@ -40,8 +40,10 @@ const MIN_CONTRAST: f64 = 15.0;
 const SAME_CANDIDATE: f64 = 0.05;
 /// Fraction of an arm's profiles that must give an edge or bar centre.
 const MIN_COVERAGE: f64 = 0.6;
-/// Arms of one target may differ this much in length (perspective, shadow).
-const MAX_ARM_RATIO: f64 = 1.6;
+/// Arms of one target may differ this much in length: mild perspective (5%
+/// corner shifts) moves them by ~10%; clutter junctions that pass the other
+/// checks typically differ by 1.4-1.6 (1.6 let 5 through on 4 frames).
+const MAX_ARM_RATIO: f64 = 1.3;
 /// Bar length over width (each arm is half the square minus nothing): the
 /// designs in use have bars of 1/12 to 1/3 of the side, so 1.5..6.
 const ARM_TO_BAR: (f64, f64) = (1.2, 7.0);
@@ -209,10 +211,11 @@ impl CrosshairDetector {
         bar = fit.bar.unwrap_or(bar);
         let max_reach = 0.75 * self.sizes.max_px;
         // The arms end: a grid or paving runs on. One arm may meet something
-        // lying against the target (a path, an object, a shadow's edge); the
-        // checks below (grid lines around a cross, uniform checker
-        // quadrants) tell that from a grid's or paving's junction.
-        let mut runs_on: Option<(usize, Option<Arm>)> = None;
+        // lying against the target (a path, an object), and a cross may lie
+        // on a stripe (two opposite arms run on); the checks below (grid
+        // lines around a cross, uniform checker quadrants) tell those from a
+        // grid's or paving's junction.
+        let mut runs_on: Vec<(usize, Option<Arm>)> = Vec::new();
         for (k, arm) in arms.iter_mut().enumerate() {
             let dir = arm_dir(&dirs, k);
             match measure_arm(
@@ -226,22 +229,33 @@ impl CrosshairDetector {
                 max_reach,
             ) {
                 ArmEnd::Ends(a) => *arm = a,
-                ArmEnd::RunsOn(a) => {
-                    if runs_on.is_some() || kind == Kind::Checker {
-                        return Err("structure runs on");
-                    }
-                    runs_on = Some((k, a));
-                }
+                ArmEnd::RunsOn(a) => runs_on.push((k, a)),
+                // Paving strips and clutter junctions look like this; a
+                // checker with a stripe beside it is lost with them.
+                ArmEnd::Beside => return Err("edge beside"),
                 ArmEnd::Flips => return Err("paving"),
                 ArmEnd::Unknown => return Err("arm leaves the tile"),
             }
         }
-        if let Some((k, a)) = runs_on {
-            // As far as its own structure went, or else as the opposite arm.
-            let opposite = arms[(k + 2) % 4];
+        let stripe = kind == Kind::Cross && runs_on.len() == 2 && runs_on[1].0 == runs_on[0].0 + 2;
+        if runs_on.len() > 1 && !stripe {
+            return Err("structure runs on");
+        }
+        for &(k, a) in &runs_on {
+            // As far as its own structure went, or else as the opposite arm
+            // (a stripe: as the arms across it).
+            let like = if stripe {
+                let (p, q) = (arms[(k + 1) % 4], arms[(k + 3) % 4]);
+                Arm {
+                    length: (p.length + q.length) / 2.0,
+                    ..p
+                }
+            } else {
+                arms[(k + 2) % 4]
+            };
             arms[k] = a.unwrap_or(Arm {
                 polarity: arms[k].polarity,
-                ..opposite
+                ..like
             });
         }
         for _ in 0..2 {
@@ -330,7 +344,7 @@ impl CrosshairDetector {
             * (1.0 / (1.0 + (fit.rms / 0.25).powi(2)))
             * (strength / 40.0).clamp(0.0, 1.0)
             * (1.0 - (lmax / lmin - 1.0) / (MAX_ARM_RATIO - 1.0) * 0.5)
-            * if runs_on.is_some() { 0.7 } else { 1.0 })
+            * 0.7f64.powi(runs_on.len() as i32))
         .powf(0.25);
         let corners: [Pt; 4] = std::array::from_fn(|k| {
             let (a, b) = (arm_dir(&dirs, k), arm_dir(&dirs, (k + 1) % 4));
@@ -657,6 +671,10 @@ enum ArmEnd {
     RunsOn(Option<Arm>),
     /// A checker's boundary continues with the colours swapped: paving.
     Flips,
+    /// Past a checker arm's end, an edge of the other polarity off the
+    /// arm's line: something lying beside the target, or a junction of
+    /// unrelated regions.
+    Beside,
     /// The arm leaves the tile before it can be judged.
     Unknown,
 }
@@ -766,10 +784,10 @@ fn measure_arm(
         // junction measured near the centre.
         let continues = match kind {
             Kind::Cross => f >= 0.5 * strength,
-            Kind::Checker => f >= 0.5 * strength || f <= -0.35 * strength,
+            Kind::Checker => f >= 0.5 * strength || f <= -0.4 * strength,
         };
         active += continues as usize;
-        flipped += (kind == Kind::Checker && f <= -0.35 * strength) as usize;
+        flipped += (kind == Kind::Checker && f <= -0.4 * strength) as usize;
         total += 1;
         t += 1.0;
     }
@@ -791,7 +809,7 @@ fn measure_arm(
         if aligned * 2 > tried {
             return ArmEnd::Flips;
         }
-        return ArmEnd::RunsOn(Some(arm));
+        return ArmEnd::Beside;
     }
     if total > 0 && active * 2 > total {
         return ArmEnd::RunsOn(Some(arm));

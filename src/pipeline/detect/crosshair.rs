@@ -33,7 +33,7 @@ use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 /// Ring samples: 2.8 degrees apart.
 const RING_SAMPLES: usize = 128;
 /// Ring samples when refining a candidate's centre and size.
-const RESPONSE_SAMPLES: usize = 64;
+const RESPONSE_SAMPLES: usize = 32;
 /// Fewest grey levels between a target's dark and light parts.
 const MIN_CONTRAST: f64 = 15.0;
 /// Candidates closer than this fraction of their size are one candidate.
@@ -123,14 +123,24 @@ impl CrosshairDetector {
             }
             best
         };
+        // Coarse to fine, 3x3 positions a step apart, halving the step.
+        let descend = |mut centre: Pt, r: f64, mut step: f64| -> Option<Pt> {
+            loop {
+                centre = search(centre, r, step, step)?.0;
+                if step <= 0.5 {
+                    return Some(centre);
+                }
+                step /= 2.0;
+            }
+        };
         let r0 = (harmonic::RING_TO_SIZE * c.size).max(3.0);
-        let (centre, _) = search(c.centre, r0, c.scale.max(1.0), (c.scale / 4.0).max(0.5))?;
+        let centre = descend(c.centre, r0, (c.scale / 2.0).max(1.0))?;
         // Radius scan: the response holds while the ring is on the target.
         let mut scores = Vec::new();
         let mut r = (0.12 * c.size).max(3.0);
         while r <= 0.9 * c.size {
             scores.push((r, eval(centre, r).unwrap_or(f64::MIN)));
-            r += (0.03 * c.size).max(1.0);
+            r += (0.04 * c.size).max(1.0);
         }
         let (k_peak, &(_, peak)) = scores
             .iter()
@@ -150,7 +160,7 @@ impl CrosshairDetector {
             Symmetry::Cross => 2.0 * r_end,
         };
         let r1 = (harmonic::RING_TO_SIZE * size).max(3.0);
-        let (centre, _) = search(centre, r1, 1.0, 0.5)?;
+        let centre = descend(centre, r1, 1.0)?;
         Some((centre, size))
     }
 

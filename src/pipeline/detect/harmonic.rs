@@ -57,7 +57,8 @@ pub struct Candidate {
     pub centre: Pt,
     /// Target side the responding ring suggests (within a factor 1.5).
     pub size: f64,
-    /// Pyramid scale (1, 2, 4...): the centre is good to about half of it.
+    /// Pyramid scale (1, 2, 4...): the centre is good to about half of it
+    /// (to one pixel on the full-resolution level, searched every 2 px).
     pub scale: f64,
     pub symmetry: Symmetry,
     pub score: f64,
@@ -112,13 +113,28 @@ impl RingBasis {
             })
     }
 
+    /// Amplitudes of the 2nd and 4th harmonics of ring `s`.
+    pub fn amplitudes(&self, s: &[f64]) -> (f64, f64) {
+        let (c2, s2) = Self::harmonic(&self.h2, s);
+        let (c4, s4) = Self::harmonic(&self.h4, s);
+        let k = 2.0 / self.n as f64;
+        (
+            k * (c2 * c2 + s2 * s2).sqrt(),
+            k * (c4 * c4 + s4 * s4).sqrt(),
+        )
+    }
+
     /// Amplitudes of the 2nd and 4th harmonics of ring `s` and its
     /// asymmetry beyond a straight step.
     pub fn response(&self, s: &[f64]) -> (f64, f64, f64) {
+        let (a2, a4) = self.amplitudes(s);
+        (a2, a4, self.asymmetry(s))
+    }
+
+    /// What is left of the ring's odd part once a straight step through
+    /// the centre is allowed for (see [`score`]).
+    pub fn asymmetry(&self, s: &[f64]) -> f64 {
         let n = self.n;
-        let (c2, s2) = Self::harmonic(&self.h2, s);
-        let (c4, s4) = Self::harmonic(&self.h4, s);
-        let k = 2.0 / n as f64;
         // The odd part (half the difference of opposite samples) less its
         // first harmonic: a shadow edge through the centre is mostly that
         // harmonic, a corner or an off-centre ring leaves much more.
@@ -130,11 +146,10 @@ impl RingBasis {
             s1 += d(i) * self.h1[i].1;
         }
         let (c1, s1) = (c1 * 2.0 / half as f64, s1 * 2.0 / half as f64);
-        let asym = (0..half)
+        (0..half)
             .map(|i| (d(i) - c1 * self.h1[i].0 - s1 * self.h1[i].1).abs())
             .sum::<f64>()
-            / half as f64;
-        (k * c2.hypot(s2), k * c4.hypot(s4), asym)
+            / half as f64
     }
 
     /// Phase of harmonic 2 or 4 of `s` (the angle of its maximum, times k).
@@ -252,38 +267,54 @@ fn level_candidates(
     // Bilinear taps of each ring sample: offset of the top-left pixel and
     // the four weights.
     let basis = RingBasis::new(SAMPLES);
-    let taps: Vec<((isize, isize), [f32; 4])> = (0..SAMPLES)
-        .map(|i| {
-            let (c, s) = basis.direction(i);
-            let (x, y) = (RING_PX * c, RING_PX * s);
-            let (fx, fy) = (x - x.floor(), y - y.floor());
-            (
-                (x.floor() as isize, y.floor() as isize),
-                [
-                    ((1.0 - fx) * (1.0 - fy)) as f32,
-                    (fx * (1.0 - fy)) as f32,
-                    ((1.0 - fx) * fy) as f32,
-                    (fx * fy) as f32,
-                ],
-            )
-        })
-        .collect();
+    // Samples at the nearest pixel to each ring direction (the level is
+    // already smoothed by pyrDown): one load each, in f32, so the harmonic
+    // sums vectorise.
+    let offsets: [isize; SAMPLES] = std::array::from_fn(|i| {
+        let (c, s) = basis.direction(i);
+        (RING_PX * s).round() as isize * w as isize + (RING_PX * c).round() as isize
+    });
+    let table = |k: f64| -> ([f32; SAMPLES], [f32; SAMPLES]) {
+        let a = |i: usize| k * std::f64::consts::TAU * i as f64 / SAMPLES as f64;
+        (
+            std::array::from_fn(|i| a(i).cos() as f32),
+            std::array::from_fn(|i| a(i).sin() as f32),
+        )
+    };
+    let ((cos2, sin2), (cos4, sin4)) = (table(2.0), table(4.0));
     let margin = RING_PX.ceil() as usize + 1;
     if w <= 2 * margin || h <= 2 * margin {
         return Ok(());
     }
+    // The response peak is several pixels wide: on the full-resolution
+    // level every other pixel and row is enough (and 4x cheaper).
+    let stride = if scale == 1.0 { 2 } else { 1 };
     let mut resp = [vec![f32::MIN; w * h], vec![f32::MIN; w * h]];
     let mut ring = [0f64; SAMPLES];
-    for y in margin..h - margin {
-        for x in margin..w - margin {
-            for (s, ((dx, dy), wt)) in ring.iter_mut().zip(&taps) {
-                let i = ((y as isize + dy) as usize) * w + (x as isize + dx) as usize;
-                *s = (logs[i] * wt[0]
-                    + logs[i + 1] * wt[1]
-                    + logs[i + w] * wt[2]
-                    + logs[i + w + 1] * wt[3]) as f64;
+    let norm = 2.0 / SAMPLES as f32;
+    for y in (margin..h - margin).step_by(stride) {
+        for x in (margin..w - margin).step_by(stride) {
+            let base = (y * w + x) as isize;
+            let v: [f32; SAMPLES] = std::array::from_fn(|i| logs[(base + offsets[i]) as usize]);
+            let (mut c2, mut s2, mut c4, mut s4) = (0f32, 0f32, 0f32, 0f32);
+            for i in 0..SAMPLES {
+                c2 += v[i] * cos2[i];
+                s2 += v[i] * sin2[i];
+                c4 += v[i] * cos4[i];
+                s4 += v[i] * sin4[i];
             }
-            let r = basis.response(&ring);
+            let a2 = norm * (c2 * c2 + s2 * s2).sqrt();
+            let a4 = norm * (c4 * c4 + s4 * s4).sqrt();
+            // The asymmetry only lowers a score: skip it where neither
+            // symmetry could reach the floor.
+            if ((a2 - a4).abs() as f64) < MIN_SCORE {
+                continue;
+            }
+            for (r, x) in ring.iter_mut().zip(v) {
+                *r = x as f64;
+            }
+            let (a2, a4) = (a2 as f64, a4 as f64);
+            let r = (a2, a4, basis.asymmetry(&ring));
             for (map, symmetry) in resp.iter_mut().zip([Symmetry::Checker, Symmetry::Cross]) {
                 let mut v = score(symmetry, r);
                 if v >= MIN_SCORE {
@@ -293,10 +324,10 @@ fn level_candidates(
             }
         }
     }
-    const NMS: usize = 2;
+    let nms = 2 * stride;
     for (map, symmetry) in resp.iter().zip([Symmetry::Checker, Symmetry::Cross]) {
-        for y in margin..h - margin {
-            for x in margin..w - margin {
+        for y in (margin..h - margin).step_by(stride) {
+            for x in (margin..w - margin).step_by(stride) {
                 let v = map[y * w + x];
                 if (v as f64) < MIN_SCORE {
                     continue;
@@ -304,8 +335,8 @@ fn level_candidates(
                 // Strict maximum over earlier neighbours, not below later
                 // ones: one peak per plateau.
                 let mut is_max = true;
-                'n: for yy in y.saturating_sub(NMS)..=(y + NMS).min(h - 1) {
-                    for xx in x.saturating_sub(NMS)..=(x + NMS).min(w - 1) {
+                'n: for yy in (y.saturating_sub(nms)..=(y + nms).min(h - 1)).step_by(stride) {
+                    for xx in (x.saturating_sub(nms)..=(x + nms).min(w - 1)).step_by(stride) {
                         let u = map[yy * w + xx];
                         if (yy, xx) < (y, x) && u >= v || (yy, xx) > (y, x) && u > v {
                             is_max = false;
@@ -324,8 +355,9 @@ fn level_candidates(
                         0.0
                     }
                 };
-                let dx = peak(map[y * w + x - 1], v, map[y * w + x + 1]);
-                let dy = peak(map[(y - 1) * w + x], v, map[(y + 1) * w + x]);
+                let s = stride;
+                let dx = peak(map[y * w + x - s], v, map[y * w + x + s]) * s as f64;
+                let dy = peak(map[(y - s) * w + x], v, map[(y + s) * w + x]) * s as f64;
                 // pyrDown keeps level pixel i centred on pixel 2i below.
                 out.push(Candidate {
                     centre: ((x as f64 + dx) * scale, (y as f64 + dy) * scale),

@@ -90,6 +90,7 @@ fn main() {
         max_ram_bytes: 2 << 30,
     };
     let (mut total, mut missed) = (0, 0);
+    let mut errors: [Vec<f64>; 2] = Default::default();
     for seed in seed0..seed0 + frames {
         let scene = if clutter {
             clutter_scene(2400, 1800, 700 + seed)
@@ -164,6 +165,7 @@ fn main() {
                     }
                     let c = d.detection.center;
                     let e = (c.0 - t.center.0).hypot(c.1 - t.center.1);
+                    errors[(t.id % 2) as usize].push(e);
                     if e > 0.3 {
                         eprintln!(
                             "  imprecise {:?} size {:.0} err {e:.3} contrast {:.2} shadow {} persp {:.3} rms {:?}",
@@ -198,6 +200,17 @@ fn main() {
                     );
                 }
             }
+        }
+    }
+    for (k, e) in errors.iter_mut().enumerate() {
+        e.sort_by(f64::total_cmp);
+        if !e.is_empty() {
+            let q = |p: f64| e[((e.len() - 1) as f64 * p).round() as usize];
+            eprintln!(
+                "  design {k}: median {:.3} px, p95 {:.3} px",
+                q(0.5),
+                q(0.95)
+            );
         }
     }
     eprintln!("{mode}: {} of {total} found", total - missed);

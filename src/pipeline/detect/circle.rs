@@ -167,11 +167,16 @@ impl CircleDetector {
                 .unwrap_or(e.c);
             (c, 2.0 * outer.radius())
         } else {
-            let horizon = board_horizon(img, &e, pass.polarity[0])?;
             // The disc's centre is the pole of the board plane's vanishing
             // line with respect to the disc's conic (exact under perspective;
-            // the ellipse's own centre is biased).
-            let c = pole(&e, &horizon)
+            // the ellipse's own centre is biased). Without subpixel board
+            // sides (faint against the ground), the ellipse's centre.
+            let horizon = match board_horizon(img, &e, pass.polarity[0]) {
+                Err("board edge faint") => None,
+                other => Some(other?),
+            };
+            let c = horizon
+                .and_then(|h| pole(&e, &h))
                 .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
                 .unwrap_or(e.c);
             (c, 2.0 * e.radius())
@@ -472,9 +477,10 @@ fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Result<[f64; 3],
             return Err("board side");
         }
         let rough = super::refine::fit_line(side).ok_or("board side")?;
-        // Subpixel where the profiles allow (ground of enough contrast),
-        // else the pixel-level line.
-        let (p, d) = board_side(img, e, rough, side, polarity).unwrap_or(rough);
+        // Subpixel where the profiles allow (ground of enough contrast);
+        // a vanishing line from pixel-level sides moves the centre more
+        // than the perspective bias it would remove.
+        let (p, d) = board_side(img, e, rough, side, polarity).ok_or("board edge faint")?;
         lines[k] = cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]);
     }
     let (v1, v2) = (cross3(lines[0], lines[2]), cross3(lines[1], lines[3]));

@@ -1138,4 +1138,28 @@ mod tests {
         assert!(classify_ring(&basis, &ring_of(|a| if a < PI { 200.0 } else { 30.0 })).is_none());
         assert!(classify_ring(&basis, &ring_of(|_| 120.0)).is_none());
     }
+
+    #[test]
+    fn a_shadow_across_a_low_contrast_checker_leaves_its_arms() {
+        let basis = RingBasis::new(RING_SAMPLES);
+        // 40% print (grey 82 and 173), boundaries at 0.5 + k * 90 degrees,
+        // and a shadow (x 0.55) over the half-ring from 1.2 to 1.2 + pi:
+        // a shadowed light quadrant (95) is barely lighter than a sunlit
+        // dark one (82).
+        let ring = ring_of(|a| {
+            let light = ((a - 0.5).rem_euclid(TAU) / (PI / 2.0)) as usize % 2 == 0;
+            let v = if light { 173.0 } else { 82.0 };
+            if (a - 1.2).rem_euclid(TAU) < PI {
+                v * 0.55
+            } else {
+                v
+            }
+        });
+        let p = classify_ring(&basis, &ring).expect("checker");
+        assert_eq!(p.kind, Kind::Checker);
+        for (k, arm) in p.arms.iter().enumerate() {
+            let want = 0.5 + k as f64 * PI / 2.0;
+            assert!((arm - want).abs() < 0.06, "arm {k}: {arm} vs {want}");
+        }
+    }
 }

@@ -171,10 +171,7 @@ impl CircleDetector {
             // line with respect to the disc's conic (exact under perspective;
             // the ellipse's own centre is biased). Without subpixel board
             // sides (faint against the ground), the ellipse's centre.
-            let horizon = match board_horizon(img, &e, pass.polarity[0]) {
-                Err("board edge faint") => None,
-                other => Some(other?),
-            };
+            let horizon = board_horizon(img, &e, pass.polarity[0])?;
             let c = horizon
                 .and_then(|h| pole(&e, &h))
                 .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
@@ -360,13 +357,7 @@ fn fit(points: &[Pt]) -> Option<Ellipse> {
 fn fit_robust(points: &[Pt]) -> Option<(Ellipse, Vec<Pt>)> {
     let first = fit(points)?;
     let r: Vec<f64> = points.iter().map(|p| first.distance(*p).abs()).collect();
-    let limit = (2.5 * 1.4826 * pr::quantile(&r, 0.5)).max(0.1);
-    let inliers: Vec<Pt> = points
-        .iter()
-        .zip(&r)
-        .filter(|(_, r)| **r <= limit)
-        .map(|(p, _)| *p)
-        .collect();
+    let inliers = pr::inliers(points, &r);
     Some((fit(&inliers)?, inliers))
 }
 
@@ -379,8 +370,13 @@ fn rms(e: &Ellipse, points: &[Pt]) -> f64 {
 /// on most rays, ending in a square of the designed proportions.
 /// Returns the image of the board plane's line at infinity (homogeneous, in
 /// coordinates relative to the disc's centre), from the vanishing points of
-/// its opposite sides; None when there is no such board.
-fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Result<[f64; 3], &'static str> {
+/// its opposite sides; None when a side is too faint against the ground to
+/// fit to subpixel precision; an error when there is no such board.
+fn board_horizon(
+    img: &GreyView,
+    e: &Ellipse,
+    polarity: f64,
+) -> Result<Option<[f64; 3]>, &'static str> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
     let mut uniform = 0;
@@ -480,11 +476,13 @@ fn board_horizon(img: &GreyView, e: &Ellipse, polarity: f64) -> Result<[f64; 3],
         // Subpixel where the profiles allow (ground of enough contrast);
         // a vanishing line from pixel-level sides moves the centre more
         // than the perspective bias it would remove.
-        let (p, d) = board_side(img, e, rough, side, polarity).ok_or("board edge faint")?;
+        let Some((p, d)) = board_side(img, e, rough, side, polarity) else {
+            return Ok(None);
+        };
         lines[k] = cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]);
     }
     let (v1, v2) = (cross3(lines[0], lines[2]), cross3(lines[1], lines[3]));
-    Ok(cross3(v1, v2))
+    Ok(Some(cross3(v1, v2)))
 }
 
 /// One side of a disc's board to subpixel precision: from the pixel-level

@@ -1,21 +1,24 @@
 //! Printed crosshair targets: a white cross on a black square, and the 2x2
 //! checker ("X" / diagonal target).
 //!
-//! 1. Candidates: dark quadrants from [`blobs`] (a checker's two dark
-//!    quadrants may merge at the centre; a cross has four). The centroid of
-//!    every blob and the midpoint of every pair of similar blobs placed like
-//!    diagonal quadrants is a candidate centre.
+//! 1. Candidates: local maxima of the ring-harmonic response of
+//!    [`harmonic`] (2-fold for checkers, 4-fold for crosses), each refined on
+//!    the full-resolution tile to the centre where that response peaks and
+//!    the size where it fades.
 //! 2. A ring of samples at two radii classifies the candidate: four narrow
 //!    bright arcs (cross bars) or four alternating quadrants (checker), and
 //!    gives the four arm directions.
 //! 3. Each arm is measured outward until its structure ends; a structure that
-//!    runs on (panel grids, paving, road markings) is rejected.
+//!    runs on (panel grids, paving, road markings) is rejected, except one
+//!    arm meeting an object, or a cross lying on a stripe.
 //! 4. Subpixel centre: the two cross bars' centre lines (midpoints of both
 //!    bar edges on profiles across the bar, every half pixel along both arms
 //!    of each bar) or the checker's two quadrant boundaries (edge crossings
-//!    along their whole length) are fitted as straight lines; the centre is
-//!    their intersection: the saddle point of a checker, the bars' crossing
-//!    for a cross, exact under perspective since lines stay lines.
+//!    along their whole length) are fitted as straight lines, outliers left
+//!    out; the centre is their intersection: the saddle point of a checker,
+//!    the bars' crossing for a cross, exact under perspective since lines
+//!    stay lines.
+//! 5. Structure checks tell targets from look-alikes (see `analyse`).
 
 use std::f64::consts::{PI, TAU};
 
@@ -40,6 +43,8 @@ const MIN_CONTRAST: f64 = 15.0;
 const SAME_CANDIDATE: f64 = 0.05;
 /// Fraction of an arm's profiles that must give an edge or bar centre.
 const MIN_COVERAGE: f64 = 0.6;
+/// Fraction of a line's edge points that must lie on the fitted line.
+const MIN_INLIER_SHARE: f64 = 0.45;
 /// Arms of one target may differ this much in length: mild perspective (5%
 /// corner shifts) moves them by ~10%; clutter junctions that pass the other
 /// checks typically differ by 1.4-1.6 (1.6 let 5 through on 4 frames).
@@ -899,7 +904,9 @@ fn fit_lines(
         }
         let (fitted, inliers) = pr::robust_line(&points)?;
         rms = rms.max(pr::line_rms(&inliers, fitted));
-        coverage = coverage.min(inliers.len() as f64 / points.len() as f64 / MIN_COVERAGE * 0.8);
+        // Outliers count against coverage: under MIN_INLIER_SHARE fails it.
+        let share = inliers.len() as f64 / points.len() as f64;
+        coverage = coverage.min(share / MIN_INLIER_SHARE * MIN_COVERAGE);
         *line = (fitted.0, orient(fitted.1, dirs[li]));
     }
     let centre = intersect(lines[0], lines[1])?;

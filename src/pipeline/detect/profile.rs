@@ -106,15 +106,22 @@ pub fn robust_line(points: &[Pt]) -> Option<((Pt, Pt), Vec<Pt>)> {
     let first = super::refine::fit_line(points)?;
     let residual = |p: &Pt, l: (Pt, Pt)| ((p.0 - l.0 .0) * l.1 .1 - (p.1 - l.0 .1) * l.1 .0).abs();
     let r: Vec<f64> = points.iter().map(|p| residual(p, first)).collect();
-    let limit = (2.5 * 1.4826 * quantile(&r, 0.5)).max(0.1);
-    let inliers: Vec<Pt> = points
-        .iter()
-        .zip(&r)
-        .filter(|(_, r)| **r <= limit)
-        .map(|(p, _)| *p)
-        .collect();
+    let inliers = inliers(points, &r);
     if inliers.len() < 6 {
         return None;
     }
     Some((super::refine::fit_line(&inliers)?, inliers))
+}
+
+/// The points whose residual (distance from a first fit) is within 2.5
+/// robust standard deviations (1.4826 x the median residual), at least
+/// 0.1 px.
+pub fn inliers(points: &[Pt], residuals: &[f64]) -> Vec<Pt> {
+    let limit = (2.5 * 1.4826 * quantile(residuals, 0.5)).max(0.1);
+    points
+        .iter()
+        .zip(residuals)
+        .filter(|(_, r)| **r <= limit)
+        .map(|(p, _)| *p)
+        .collect()
 }

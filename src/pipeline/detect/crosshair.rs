@@ -104,10 +104,10 @@ impl CrosshairDetector {
     /// A candidate's centre and size at full resolution: the position
     /// within its pyramid pixel where the ring response peaks, then the
     /// radius beyond which it fades (the target's edge).
-    fn refine_start(&self, img: &GreyView, c: &Candidate, lut: &[f64; 256]) -> Option<(Pt, f64)> {
+    fn refine_start(&self, img: &GreyView, c: &Candidate) -> Option<(Pt, f64)> {
         let eval = |p: Pt, r: f64| -> Option<f64> {
             let ring = pr::ring(img, p, r, &self.response_basis)?;
-            let logs: Vec<f64> = ring.iter().map(|v| log_of(lut, *v)).collect();
+            let logs: Vec<f64> = ring.iter().map(|v| harmonic::log_grey(*v)).collect();
             Some(harmonic::score(
                 c.symmetry,
                 self.response_basis.response(&logs),
@@ -399,14 +399,10 @@ impl Detector for CrosshairDetector {
         let err = DetectError::at(origin);
         let candidates = harmonic::candidates(tile, self.sizes).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
-        let lut = harmonic::log_table();
         // Strongest first, so a target's best start survives the merging.
         let mut ranked: Vec<(f64, Pt, f64)> = candidates
             .iter()
-            .filter_map(|c| {
-                self.refine_start(&img, c, &lut)
-                    .map(|(p, s)| (c.score, p, s))
-            })
+            .filter_map(|c| self.refine_start(&img, c).map(|(p, s)| (c.score, p, s)))
             .filter(|(_, _, s)| *s >= 0.7 * self.sizes.min_px && *s <= 1.4 * self.sizes.max_px)
             .collect();
         ranked.sort_by(|a, b| {
@@ -469,15 +465,6 @@ fn dedup_points(points: Vec<(Pt, f64)>, fraction: f64) -> Vec<(Pt, f64)> {
     kept
 }
 
-/// Grey level to natural log through the table of [`harmonic::log_table`]
-/// (bilinear samples are fractional: interpolated between entries).
-fn log_of(lut: &[f64; 256], v: f64) -> f64 {
-    let v = v.clamp(0.0, 255.0);
-    let i = (v as usize).min(254);
-    let f = v - i as f64;
-    lut[i] * (1.0 - f) + lut[i + 1] * f
-}
-
 /// Classifies a ring of samples: four alternating quadrants (checker) or
 /// four narrow bright arcs on dark (cross), and finds the arms.
 ///
@@ -493,15 +480,9 @@ fn classify_ring(basis: &RingBasis, v: &[f64]) -> Option<RingPattern> {
         return None;
     }
     let n = v.len();
-    let lut = harmonic::log_table();
     // [1 2 1] smoothing against noise.
     let lv: Vec<f64> = (0..n)
-        .map(|i| {
-            log_of(
-                &lut,
-                (v[(i + n - 1) % n] + 2.0 * v[i] + v[(i + 1) % n]) / 4.0,
-            )
-        })
+        .map(|i| harmonic::log_grey((v[(i + n - 1) % n] + 2.0 * v[i] + v[(i + 1) % n]) / 4.0))
         .collect();
     let response = basis.response(&lv);
     let symmetry = if harmonic::score(Symmetry::Checker, response) >= harmonic::MIN_SCORE {

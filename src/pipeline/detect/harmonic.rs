@@ -212,9 +212,22 @@ pub fn score(symmetry: Symmetry, (a2, a4, asym): (f64, f64, f64)) -> f64 {
     }
 }
 
-/// Natural log of (grey + [`LOG_OFFSET`]) for every 8-bit value.
-pub fn log_table() -> [f64; 256] {
-    std::array::from_fn(|v| (v as f64 + LOG_OFFSET).ln())
+/// Natural log of (grey + [`LOG_OFFSET`]) for every 8-bit value, built once
+/// per process.
+fn log_table() -> &'static [f64; 256] {
+    static TABLE: std::sync::LazyLock<[f64; 256]> =
+        std::sync::LazyLock::new(|| std::array::from_fn(|v| (v as f64 + LOG_OFFSET).ln()));
+    &TABLE
+}
+
+/// ln(grey + [`LOG_OFFSET`]) of a grey level, fractional ones (bilinear
+/// samples) interpolated between the table's entries.
+pub fn log_grey(v: f64) -> f64 {
+    let lut = log_table();
+    let v = v.clamp(0.0, 255.0);
+    let i = (v as usize).min(254);
+    let f = v - i as f64;
+    lut[i] * (1.0 - f) + lut[i + 1] * f
 }
 
 /// Candidates in `tile` (8-bit grey) for targets of `sizes`, ordered by
@@ -222,9 +235,11 @@ pub fn log_table() -> [f64; 256] {
 pub fn candidates(tile: &Mat, sizes: SizeRange) -> opencv::Result<Vec<Candidate>> {
     let lut = log_table();
     let mut out = Vec::new();
-    let mut level = tile.clone();
+    // Level 0 is the tile itself (borrowed); the others are pyrDown's.
+    let mut reduced: Option<Mat> = None;
     let mut scale = 1.0;
     loop {
+        let level = reduced.as_ref().unwrap_or(tile);
         let band = (
             RING_PX / RING_FRACTIONS.1 * scale,
             RING_PX / RING_FRACTIONS.0 * scale,
@@ -233,12 +248,12 @@ pub fn candidates(tile: &Mat, sizes: SizeRange) -> opencv::Result<Vec<Candidate>
             break;
         }
         if band.1 >= sizes.min_px / 1.15 {
-            level_candidates(&level, scale, &lut, &mut out)?;
+            level_candidates(level, scale, lut, &mut out)?;
         }
         let mut next = Mat::default();
         let size = Size::new((level.cols() + 1) / 2, (level.rows() + 1) / 2);
-        imgproc::pyr_down(&level, &mut next, size, BORDER_REFLECT101)?;
-        level = next;
+        imgproc::pyr_down(level, &mut next, size, BORDER_REFLECT101)?;
+        reduced = Some(next);
         scale *= 2.0;
     }
     out.sort_by(|a, b| {

@@ -37,6 +37,19 @@ const MIN_COVERAGE: f64 = 0.75;
 const BOARD_TO_DISC: (f64, f64) = (1.4, 3.0);
 /// Largest RMS distance of edge points from their ellipse.
 const MAX_FIT_RMS_PX: f64 = 0.45;
+/// Sides of a disc's board that must be seen: one may be hidden by an
+/// object lying on or against it, or by ground of the board's grey.
+const MIN_BOARD_SIDES: usize = 3;
+/// With fewer sides held, the share of all rays whose end must lie on the
+/// square.
+const MIN_END_AGREEMENT: f64 = 0.6;
+/// Share of a side's rays whose end must lie on it for the side to hold.
+const MIN_SIDE_SUPPORT: f64 = 0.6;
+/// An end point lies on its side within this fraction of the side's distance.
+const SQUARE_TOLERANCE: f64 = 0.07;
+/// Held sides' distances from the disc's centre may differ this much (mild
+/// perspective); a roof with a tank off its centre differs by 25% and more.
+const MAX_SIDE_RATIO: f64 = 1.15;
 /// A contour is an ellipse when its area is this close to its fit's.
 const ROUNDNESS: (f64, f64) = (0.85, 1.15);
 
@@ -421,57 +434,19 @@ fn board_horizon(
     if (uniform as f64) < 0.8 * n as f64 {
         return Err("board not uniform");
     }
-    if (ends.len() as f64) < 0.6 * n as f64 {
+    if (ends.len() as f64) < MIN_BOARD_SIDES as f64 * MIN_SIDE_SUPPORT * n as f64 / 4.0 {
         return Err("board does not end");
     }
-    // Square fit: half-side estimates from each end point for every
-    // orientation; keep the orientation with most agreeing points.
-    let mut best = (0usize, 0.0, 0.0);
-    for deg in 0..90 {
-        let psi = (deg as f64).to_radians();
-        let halves: Vec<f64> = ends
-            .iter()
-            .map(|p| {
-                let a = p.1.atan2(p.0) - psi;
-                p.0.hypot(p.1) * a.cos().abs().max(a.sin().abs())
-            })
-            .collect();
-        let half = pr::quantile(&halves, 0.5);
-        let agree = halves
-            .iter()
-            .filter(|h| (*h - half).abs() < 0.07 * half)
-            .count();
-        if agree > best.0 {
-            best = (agree, half, psi);
-        }
-    }
-    let ratio = best.1 / e.radius();
-    // A round board (a ring around a disc) fits a square loosely too; a
-    // square's corners lie sqrt 2 farther out than its sides' middles.
-    let reach: Vec<f64> = ends.iter().map(|p| p.0.hypot(p.1)).collect();
-    let spread = pr::quantile(&reach, 0.9) / pr::quantile(&reach, 0.1);
-    let square = (best.0 as f64) >= 0.6 * n as f64
-        && spread >= 1.2
-        && (BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio);
-    if !square {
+    let square = fit_board_square(&ends, n).ok_or("board not square")?;
+    let ratio = square.half / e.radius();
+    if !(BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio) {
         return Err("board not square");
     }
-    // One line per side from the end points away from the corners.
-    let psi = best.2;
-    let mut sides: [Vec<Pt>; 4] = Default::default();
-    for p in &ends {
-        let a = (p.1.atan2(p.0) - psi).rem_euclid(std::f64::consts::TAU);
-        let k = (a / std::f64::consts::FRAC_PI_2).round() as usize % 4;
-        let off = (a - k as f64 * std::f64::consts::FRAC_PI_2).abs();
-        if off.min(std::f64::consts::TAU - off) < 30f64.to_radians() {
-            sides[k].push(*p);
-        }
-    }
+    // A side hidden by something lying on or against the board (or ground
+    // of the board's grey) leaves no vanishing line: the ellipse's centre.
     let mut lines = [[0.0; 3]; 4];
-    for (k, side) in sides.iter().enumerate() {
-        if side.len() < 4 {
-            return Err("board side");
-        }
+    for (k, side) in square.sides.iter().enumerate() {
+        let Some(side) = side else { return Ok(None) };
         let rough = super::refine::fit_line(side).ok_or("board side")?;
         // Subpixel where the profiles allow (ground of enough contrast);
         // a vanishing line from pixel-level sides moves the centre more
@@ -483,6 +458,95 @@ fn board_horizon(
     }
     let (v1, v2) = (cross3(lines[0], lines[2]), cross3(lines[1], lines[3]));
     Ok(Some(cross3(v1, v2)))
+}
+
+/// A square board centred on its disc, fitted to the end points of rays.
+struct BoardSquare {
+    /// Mean distance of the held sides from the disc's centre.
+    half: f64,
+    /// Each side's end points (relative to the disc's centre) lying on it,
+    /// None for a side too few points agree on (hidden or unseen).
+    sides: [Option<Vec<Pt>>; 4],
+}
+
+/// Fits a square centred on the origin to a board's end points `ends`
+/// (from `n` rays): for every orientation, each point is assigned to the
+/// nearest side and projected on that side's normal; a side holds when
+/// enough of its points agree with their median. The orientation with the
+/// most agreeing points wins, on at least [`MIN_BOARD_SIDES`] held sides of
+/// nearly equal distance, or on fewer when [`MIN_END_AGREEMENT`] of all
+/// end points lie on the square. A round board (a ring around a disc) fails:
+/// the agreeing points of a square reach sqrt 2 farther at its corners
+/// than at its sides' middles, a circle's do not. So does a roof with a
+/// tank off its centre: its sides lie at different distances.
+fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
+    let per_side = n as f64 / 4.0;
+    let mut best: Option<(usize, BoardSquare)> = None;
+    for deg in 0..90 {
+        let psi = (deg as f64).to_radians();
+        // Per side: point, distance along the side's normal, angle off it.
+        let mut sides: [Vec<(Pt, f64, f64)>; 4] = Default::default();
+        for p in ends {
+            let a = (p.1.atan2(p.0) - psi).rem_euclid(std::f64::consts::TAU);
+            let k = (a / std::f64::consts::FRAC_PI_2).round() as usize % 4;
+            // cos is even and 2pi-periodic: no wrap-around to mind.
+            let off = a - k as f64 * std::f64::consts::FRAC_PI_2;
+            sides[k].push((*p, p.0.hypot(p.1) * off.cos(), off.sin().abs()));
+        }
+        // Sides that hold: their median distance.
+        let mut held: Vec<f64> = Vec::new();
+        let mut lines: [Option<Vec<Pt>>; 4] = Default::default();
+        for (k, side) in sides.iter().enumerate() {
+            if side.is_empty() {
+                continue;
+            }
+            let h: Vec<f64> = side.iter().map(|s| s.1).collect();
+            let m = pr::quantile(&h, 0.5);
+            let on: Vec<&(Pt, f64, f64)> = side
+                .iter()
+                .filter(|s| (s.1 - m).abs() < SQUARE_TOLERANCE * m)
+                .collect();
+            if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
+                continue;
+            }
+            held.push(m);
+            // The side's line from points away from the corners, where
+            // perspective may put a point on the neighbouring side.
+            let middle: Vec<Pt> = on.iter().filter(|s| s.2 < 0.5).map(|s| s.0).collect();
+            lines[k] = (middle.len() >= 4).then_some(middle);
+        }
+        // The most sides at nearly one distance: perspective may move one
+        // farther (a square's image is no square), an object may hide one,
+        // ground of the board's grey (a shadow) may hide two; then most of
+        // all end points must still lie on the square.
+        held.sort_by(f64::total_cmp);
+        for (i, &lo) in held.iter().enumerate() {
+            let same: Vec<f64> = held[i..]
+                .iter()
+                .copied()
+                .take_while(|h| *h <= MAX_SIDE_RATIO * lo)
+                .collect();
+            let half = same.iter().sum::<f64>() / same.len() as f64;
+            let reach: Vec<f64> = sides
+                .iter()
+                .flatten()
+                .filter(|s| (s.1 - half).abs() < SQUARE_TOLERANCE * half)
+                .map(|s| s.0 .0.hypot(s.0 .1))
+                .collect();
+            let agree = reach.len();
+            if same.len() < MIN_BOARD_SIDES && (agree as f64) < MIN_END_AGREEMENT * n as f64 {
+                continue;
+            }
+            if pr::quantile(&reach, 0.9) / pr::quantile(&reach, 0.1) < 1.2 {
+                continue;
+            }
+            if best.as_ref().is_none_or(|b| agree > b.0) {
+                let sides = lines.clone();
+                best = Some((agree, BoardSquare { half, sides }));
+            }
+        }
+    }
+    best.map(|b| b.1)
 }
 
 /// One side of a disc's board to subpixel precision: from the pixel-level

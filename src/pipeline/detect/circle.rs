@@ -26,7 +26,7 @@ use super::fiducial::grey_view;
 use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::profile as pr;
-use super::refine::GreyView;
+use super::refine::{intersect, GreyView};
 use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Fewest grey levels between a target's dark and light parts.
@@ -50,6 +50,14 @@ const SQUARE_TOLERANCE: f64 = 0.07;
 /// Held sides' distances from the disc's centre may differ this much (mild
 /// perspective); a roof with a tank off its centre differs by 25% and more.
 const MAX_SIDE_RATIO: f64 = 1.15;
+/// A side between two opposite ones may lie this much nearer or farther
+/// than they do: perspective of 5% corner shifts, doubled on a board twice
+/// its target's size.
+const MAX_PERSPECTIVE_RATIO: f64 = 1.25;
+/// A board seen on all four sides is centred on its disc within this
+/// fraction of its half side (plus a pixel): pixel-level side lines place
+/// its centre to ~1 px; a tank off a flat roof's centre is off by 15%+.
+const MAX_CENTRE_OFFSET: f64 = 0.06;
 /// A contour is an ellipse when its area is this close to its fit's.
 const ROUNDNESS: (f64, f64) = (0.85, 1.15);
 
@@ -493,8 +501,9 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             let off = a - k as f64 * std::f64::consts::FRAC_PI_2;
             sides[k].push((*p, p.0.hypot(p.1) * off.cos(), off.sin().abs()));
         }
-        // Sides that hold: their median distance.
-        let mut held: Vec<f64> = Vec::new();
+        // Sides that hold: their median distance, and how far from the
+        // centre their agreeing points lie.
+        let mut held: Vec<(usize, f64, Vec<f64>)> = Vec::new();
         let mut lines: [Option<Vec<Pt>>; 4] = Default::default();
         for (k, side) in sides.iter().enumerate() {
             if side.is_empty() {
@@ -509,19 +518,60 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
                 continue;
             }
-            held.push(m);
+            held.push((k, m, on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect()));
             // The side's line from points away from the corners, where
             // perspective may put a point on the neighbouring side.
             let middle: Vec<Pt> = on.iter().filter(|s| s.2 < 0.5).map(|s| s.0).collect();
             lines[k] = (middle.len() >= 4).then_some(middle);
         }
-        // The most sides at nearly one distance: perspective may move one
-        // farther (a square's image is no square), an object may hide one,
-        // ground of the board's grey (a shadow) may hide two; then most of
-        // all end points must still lie on the square.
-        held.sort_by(f64::total_cmp);
-        for (i, &lo) in held.iter().enumerate() {
-            let same: Vec<f64> = held[i..]
+        // A round board (a ring around a disc) fits a square loosely too; a
+        // square's corners lie sqrt 2 farther out than its sides' middles.
+        let cornered = |reach: &[f64]| pr::quantile(reach, 0.9) / pr::quantile(reach, 0.1) >= 1.2;
+        let mut consider = |agree: usize, half: f64| {
+            if best.as_ref().is_none_or(|b| agree > b.0) {
+                let sides = lines.clone();
+                best = Some((agree, BoardSquare { half, sides }));
+            }
+        };
+        // All four sides seen: at whatever distances perspective gives them,
+        // so long as the board's own centre (where its diagonals cross) is
+        // the disc's.
+        if held.len() == 4 {
+            let reach: Vec<f64> = held.iter().flat_map(|h| h.2.iter().copied()).collect();
+            let half = held.iter().map(|h| h.1).sum::<f64>() / 4.0;
+            let centred = board_centre(&lines)
+                .is_some_and(|c| c.0.hypot(c.1) < MAX_CENTRE_OFFSET * half + 1.0);
+            if centred && cornered(&reach) {
+                consider(reach.len(), half);
+            }
+        }
+        // Three sides: two opposite ones about equally far (the disc is
+        // centred between them), the third as far as perspective allows.
+        if held.len() == 3 {
+            let odd = (0..3).find(|&i| {
+                held.iter()
+                    .all(|h| h.0 % 2 != held[i].0 % 2 || h.0 == held[i].0)
+            });
+            if let Some(i) = odd {
+                let pair: Vec<f64> = (0..3).filter(|&j| j != i).map(|j| held[j].1).collect();
+                let mean = (pair[0] + pair[1]) / 2.0;
+                let centred = pair[0].max(pair[1]) / pair[0].min(pair[1]) <= MAX_SIDE_RATIO;
+                let odd = held[i].1;
+                if centred && odd.max(mean) / odd.min(mean) <= MAX_PERSPECTIVE_RATIO {
+                    let reach: Vec<f64> = held.iter().flat_map(|h| h.2.iter().copied()).collect();
+                    if cornered(&reach) {
+                        consider(reach.len(), (mean + odd) / 2.0);
+                    }
+                }
+            }
+        }
+        // Or the most sides at nearly one distance: an object may hide one,
+        // ground of the board's grey (a shadow) two; then most of all end
+        // points must still lie on the square.
+        let mut halves: Vec<f64> = held.iter().map(|h| h.1).collect();
+        halves.sort_by(f64::total_cmp);
+        for (i, &lo) in halves.iter().enumerate() {
+            let same: Vec<f64> = halves[i..]
                 .iter()
                 .copied()
                 .take_while(|h| *h <= MAX_SIDE_RATIO * lo)
@@ -537,16 +587,30 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             if same.len() < MIN_BOARD_SIDES && (agree as f64) < MIN_END_AGREEMENT * n as f64 {
                 continue;
             }
-            if pr::quantile(&reach, 0.9) / pr::quantile(&reach, 0.1) < 1.2 {
-                continue;
-            }
-            if best.as_ref().is_none_or(|b| agree > b.0) {
-                let sides = lines.clone();
-                best = Some((agree, BoardSquare { half, sides }));
+            if cornered(&reach) {
+                consider(agree, half);
             }
         }
     }
     best.map(|b| b.1)
+}
+
+/// Where the diagonals of the quadrilateral bounded by four side lines
+/// (each through its points, in order around the board) cross: the image
+/// of the board's centre under any perspective.
+fn board_centre(sides: &[Option<Vec<Pt>>; 4]) -> Option<Pt> {
+    let mut lines = Vec::with_capacity(4);
+    for side in sides {
+        lines.push(super::refine::fit_line(side.as_deref()?)?);
+    }
+    let corners: Vec<Pt> = (0..4)
+        .map(|k| intersect(lines[k], lines[(k + 1) % 4]))
+        .collect::<Option<_>>()?;
+    let diagonal = |p: Pt, q: Pt| (p, (q.0 - p.0, q.1 - p.1));
+    intersect(
+        diagonal(corners[0], corners[2]),
+        diagonal(corners[1], corners[3]),
+    )
 }
 
 /// One side of a disc's board to subpixel precision: from the pixel-level

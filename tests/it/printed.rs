@@ -85,32 +85,31 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
     Figures { recall, errors }
 }
 
-// Issue 3 asks for recall >= 98%; the detectors reach 94% (crosshair) and
-// 95% (circle) on these frames (README, "Printed targets"). The recall
+// Issue 3 asks for recall >= 98%; the detectors reach 95.8% (crosshair) and
+// 97.5% (circle) on these frames (README, "Printed targets"). The recall
 // floors guard that level until the gap is closed; the precision targets
-// are asserted in full except the disc's p95 (0.39 px against 0.3).
+// are asserted in full.
 
 #[test]
 fn crosshair_and_checker_targets_are_found_to_a_tenth_of_a_pixel() {
     let f = measure(MarkerType::Crosshair, 300);
-    assert!(f.recall >= 0.93, "recall {}", f.recall);
+    assert!(f.recall >= 0.95, "recall {}", f.recall);
     let all = f.errors.concat();
     assert!(quantile(&all, 0.5) <= 0.1, "median");
     assert!(quantile(&all, 0.95) <= 0.3, "p95");
 }
 
 #[test]
-fn bullseye_centres_are_subpixel_and_discs_are_found() {
+fn bullseye_and_disc_centres_are_subpixel() {
     let f = measure(MarkerType::Circle, 400);
-    assert!(f.recall >= 0.93, "recall {}", f.recall);
+    assert!(f.recall >= 0.97, "recall {}", f.recall);
     let [bullseye, disc] = &f.errors;
     assert!(quantile(bullseye, 0.5) <= 0.1, "bullseye median");
     assert!(quantile(bullseye, 0.95) <= 0.3, "bullseye p95");
-    // A disc's centre is the pole of the board's vanishing line; the board
-    // edges are subpixel, but a shadow edge across a small board still
-    // moves it: p95 0.39 px, a known gap (README).
+    // A disc's centre is the pole of the board's vanishing line when all
+    // four sides are seen, else the ellipse's centre.
     assert!(quantile(disc, 0.5) <= 0.1, "disc median");
-    assert!(quantile(disc, 0.95) <= 0.45, "disc p95");
+    assert!(quantile(disc, 0.95) <= 0.3, "disc p95");
 }
 
 /// Solar panels, paving checkers, road crosses, manholes, pyramid roofs,

@@ -14,8 +14,9 @@
 //!    With two concentric rings the true centre is recovered exactly: for the
 //!    conics C1, C3 of the inner and outer ring, it is the eigenvector of
 //!    C1^-1 C3 for its single eigenvalue (the other two are equal). For a
-//!    disc, the board's four sides give the plane's vanishing line, and the
-//!    centre is that line's pole with respect to the disc's conic.
+//!    disc seen on all four sides of its board, the sides give the plane's
+//!    vanishing line, and the centre is that line's pole with respect to the
+//!    disc's conic; a board partly hidden keeps the ellipse's centre.
 
 use opencv::core::{Mat, Point2f, RotatedRect, Vector};
 use opencv::imgproc;
@@ -481,12 +482,14 @@ struct BoardSquare {
 /// (from `n` rays): for every orientation, each point is assigned to the
 /// nearest side and projected on that side's normal; a side holds when
 /// enough of its points agree with their median. The orientation with the
-/// most agreeing points wins, on at least [`MIN_BOARD_SIDES`] held sides of
-/// nearly equal distance, or on fewer when [`MIN_END_AGREEMENT`] of all
-/// end points lie on the square. A round board (a ring around a disc) fails:
-/// the agreeing points of a square reach sqrt 2 farther at its corners
-/// than at its sides' middles, a circle's do not. So does a roof with a
-/// tank off its centre: its sides lie at different distances.
+/// most agreeing points wins among those where: all four sides hold and the
+/// board's diagonals cross at the disc; or three hold, two opposite ones
+/// equally far; or [`MIN_BOARD_SIDES`] hold at nearly one distance; or
+/// fewer, with [`MIN_END_AGREEMENT`] of all end points on the square. A
+/// round board (a ring around a disc) fails: the agreeing points of a
+/// square reach sqrt 2 farther at its corners than at its sides' middles, a
+/// circle's do not. So does a roof with a tank off its centre: its sides
+/// lie at different distances, its diagonals cross away from the tank.
 fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
     let per_side = n as f64 / 4.0;
     let mut best: Option<(usize, BoardSquare)> = None;

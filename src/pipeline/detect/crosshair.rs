@@ -1021,7 +1021,9 @@ fn grid_lines_around(
 /// each quadrant, a sample differs from its mirror image across the
 /// neighbouring arm (in the quadrant of the other colour) the same way as
 /// the quadrants do. A junction of unrelated regions (a paving corner by a
-/// road marking) has "quadrants" that change colour within the square.
+/// road marking) has "quadrants" that change colour within the square. A
+/// quarter of the pairs may fail: a shadow edge across a low-contrast
+/// checker brings its shadowed light part close to the lit dark one.
 fn checker_quadrants_uniform(
     img: &GreyView,
     c: Pt,
@@ -1064,7 +1066,7 @@ fn checker_quadrants_uniform(
                 .count()
         })
         .sum::<usize>();
-    passed >= 32
+    passed >= 28
 }
 
 /// Mean grey level of each quadrant, between arm k and arm k+1, sampled on

@@ -35,6 +35,9 @@ use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Ring samples: 2.8 degrees apart.
 const RING_SAMPLES: usize = 128;
+/// Radii of the ring that confirms a candidate's arms, as fractions of its
+/// size guess, tried in turn (the inner ring is at 0.28).
+const OUTER_RINGS: [f64; 2] = [0.4, 0.34];
 /// Ring samples when refining a candidate's centre and size.
 const RESPONSE_SAMPLES: usize = 32;
 /// Fewest grey levels between a target's dark and light parts.
@@ -170,22 +173,33 @@ impl CrosshairDetector {
     }
 
     fn analyse(&self, img: &GreyView, start: Pt, size_guess: f64) -> Result<Found, &'static str> {
-        let (r1, r2) = (0.28 * size_guess, 0.4 * size_guess);
+        let r1 = 0.28 * size_guess;
         if r1 < 3.0 {
             return Err("too small");
         }
         let ring1 = pr::ring(img, start, r1, &self.ring_basis).ok_or("inner ring")?;
         let p1 = classify_ring(&self.ring_basis, &ring1).ok_or("inner ring")?;
-        let p2 = classify_ring(
-            &self.ring_basis,
-            &pr::ring(img, start, r2, &self.ring_basis).ok_or("outer ring")?,
-        )
-        .ok_or("outer ring")?;
-        if p1.kind != p2.kind {
-            return Err("rings disagree");
+        // The outer ring confirms the inner one's arms farther out. The size
+        // guess runs large on a faint target; a ring beyond its square sees
+        // the dark corners as a pattern turned by 45 degrees: nearer then.
+        let mut outer = Err("outer ring");
+        for r2 in OUTER_RINGS.map(|f| f * size_guess) {
+            let ring2 = pr::ring(img, start, r2, &self.ring_basis).ok_or("outer ring")?;
+            outer = classify_ring(&self.ring_basis, &ring2)
+                .ok_or("outer ring")
+                .and_then(|p2| {
+                    if p2.kind != p1.kind {
+                        return Err("rings disagree");
+                    }
+                    let arms2 = match_arms(&p1.arms, &p2.arms).ok_or("arms do not match")?;
+                    Ok((r2, p2, arms2))
+                });
+            if outer.is_ok() {
+                break;
+            }
         }
+        let (r2, p2, arms2) = outer?;
         let kind = p1.kind;
-        let arms2 = match_arms(&p1.arms, &p2.arms).ok_or("arms do not match")?;
         // Arm k passes through its crossings of both rings.
         let on = |k: usize| {
             [

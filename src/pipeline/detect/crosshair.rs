@@ -287,6 +287,24 @@ impl CrosshairDetector {
                 ..like
             });
         }
+        // A stripe under a cross that ends not far past the board: two
+        // opposite bars go on to the stripe's ends, the two across it stop
+        // at the board's edge. Those bars as long as the arms across.
+        let mut under_stripe = 0;
+        if kind == Kind::Cross && runs_on.is_empty() {
+            for k in 0..2 {
+                let (p, q) = (arms[k + 1].length, arms[(k + 3) % 4].length);
+                let (short_lo, short_hi) = (p.min(q), p.max(q));
+                let long_lo = arms[k].length.min(arms[k + 2].length);
+                if short_hi / short_lo <= MAX_ARM_RATIO && long_lo > MAX_ARM_RATIO * short_hi {
+                    for j in [k, k + 2] {
+                        arms[j].length = (p + q) / 2.0;
+                    }
+                    under_stripe = 2;
+                    break;
+                }
+            }
+        }
         for _ in 0..2 {
             fit = fit_lines(img, kind, centre, dirs, &arms, bar).ok_or("fit")?;
             centre = fit.centre;
@@ -373,7 +391,7 @@ impl CrosshairDetector {
             * (1.0 / (1.0 + (fit.rms / 0.25).powi(2)))
             * (strength / 40.0).clamp(0.0, 1.0)
             * (1.0 - (lmax / lmin - 1.0) / (MAX_ARM_RATIO - 1.0) * 0.5)
-            * 0.7f64.powi(runs_on.len() as i32))
+            * 0.7f64.powi((runs_on.len() + under_stripe) as i32))
         .powf(0.25);
         let corners: [Pt; 4] = std::array::from_fn(|k| {
             let (a, b) = (arm_dir(&dirs, k), arm_dir(&dirs, (k + 1) % 4));

@@ -55,6 +55,9 @@ const MAX_ARM_RATIO: f64 = 1.3;
 /// Bar length over width (each arm is half the square minus nothing): the
 /// designs in use have bars of 1/12 to 1/3 of the side, so 1.5..6.
 const ARM_TO_BAR: (f64, f64) = (1.2, 7.0);
+/// Past a checker arm's end, a flipped boundary is paving when its log
+/// contrast ratio is the quadrants' within this fraction.
+const FLIP_RATIO: f64 = 0.5;
 /// Largest RMS distance of edge points from their fitted line: above it the
 /// "lines" are not straight (a fold, an object on the target, clutter).
 const MAX_FIT_RMS_PX: f64 = 0.45;
@@ -753,6 +756,13 @@ fn measure_arm(
     };
     let reference_end = t0 + (0.15 * size_guess).max(3.0);
     let mut near = Vec::new();
+    // Checker: the quadrants' levels either side of the arm near the centre.
+    let mut sides = (Vec::new(), Vec::new());
+    let n = perp(a);
+    let level = |t: f64, s: f64| {
+        let p = add(add(c, a, t), n, s);
+        img.sample(p.0, p.1)
+    };
     let mut t = t0;
     let mut below = 0;
     let mut length = None;
@@ -763,6 +773,10 @@ fn measure_arm(
         };
         if t <= reference_end {
             near.push(f);
+            if let (Some(l), Some(r)) = (level(t, o), level(t, -o)) {
+                sides.0.push(l);
+                sides.1.push(r);
+            }
         } else {
             if strength == 0.0 {
                 strength = pr::quantile(&near, 0.5);
@@ -801,10 +815,24 @@ fn measure_arm(
     let mut active = 0;
     let mut flipped = 0;
     let mut total = 0;
+    // The quadrants' contrast as a log ratio: a shadow over paving scales
+    // both its tiles and keeps it.
+    let ratio = harmonic::log_grey(pr::quantile(&sides.0, 0.5))
+        - harmonic::log_grey(pr::quantile(&sides.1, 0.5));
     let mut t = from;
     while t <= to {
         let Some(f) = feature(img, kind, c, a, t, o, polarity) else {
             break;
+        };
+        // Paving's boundary flips between the same two tiles, lit or in
+        // shadow alike; a shadow edge or a stripe continuing a target's
+        // boundary separates ground from something else, at another ratio.
+        let swapped = match (level(t, o), level(t, -o)) {
+            (Some(l), Some(r)) => {
+                let flipped_ratio = harmonic::log_grey(r) - harmonic::log_grey(l);
+                (flipped_ratio - ratio).abs() < FLIP_RATIO * ratio.abs()
+            }
+            _ => false,
         };
         // A cross's bar continues as a bright bar (a grid line); a checker's
         // boundary continues as the same edge (a long straight edge) or, in
@@ -815,7 +843,9 @@ fn measure_arm(
             Kind::Checker => f >= 0.5 * strength || f <= -0.4 * strength,
         };
         active += continues as usize;
-        flipped += (kind == Kind::Checker && f <= -0.4 * strength) as usize;
+        // A flip as strong as the junction is paving whatever its levels.
+        let paving_like = f <= -0.7 * strength || (f <= -0.4 * strength && swapped);
+        flipped += (kind == Kind::Checker && paving_like) as usize;
         total += 1;
         t += 1.0;
     }

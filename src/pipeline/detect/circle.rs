@@ -38,11 +38,8 @@ const MIN_COVERAGE: f64 = 0.75;
 const BOARD_TO_DISC: (f64, f64) = (1.4, 3.0);
 /// Largest RMS distance of edge points from their ellipse.
 const MAX_FIT_RMS_PX: f64 = 0.45;
-/// Sides of a disc's board that must be seen: one may be hidden by an
-/// object lying on or against it, or by ground of the board's grey.
-const MIN_BOARD_SIDES: usize = 3;
-/// With fewer sides held, the share of all rays whose end must lie on the
-/// square.
+/// Unless all four sides hold, the share of all rays whose end must lie on
+/// the square.
 const MIN_END_AGREEMENT: f64 = 0.6;
 /// Share of a side's rays whose end must lie on it for the side to hold.
 const MIN_SIDE_SUPPORT: f64 = 0.6;
@@ -51,10 +48,6 @@ const SQUARE_TOLERANCE: f64 = 0.07;
 /// Held sides' distances from the disc's centre may differ this much (mild
 /// perspective); a roof with a tank off its centre differs by 25% and more.
 const MAX_SIDE_RATIO: f64 = 1.15;
-/// A side between two opposite ones may lie this much nearer or farther
-/// than they do: perspective of 5% corner shifts, doubled on a board twice
-/// its target's size.
-const MAX_PERSPECTIVE_RATIO: f64 = 1.25;
 /// A board seen on all four sides is centred on its disc within this
 /// fraction of its half side (plus a pixel): pixel-level side lines place
 /// its centre to ~1 px; a tank off a flat roof's centre is off by 15%+.
@@ -443,7 +436,7 @@ fn board_horizon(
     if (uniform as f64) < 0.8 * n as f64 {
         return Err("board not uniform");
     }
-    if (ends.len() as f64) < MIN_BOARD_SIDES as f64 * MIN_SIDE_SUPPORT * n as f64 / 4.0 {
+    if (ends.len() as f64) < MIN_END_AGREEMENT * n as f64 {
         return Err("board does not end");
     }
     let square = fit_board_square(&ends, n).ok_or("board not square")?;
@@ -483,9 +476,8 @@ struct BoardSquare {
 /// nearest side and projected on that side's normal; a side holds when
 /// enough of its points agree with their median. The orientation with the
 /// most agreeing points wins among those where: all four sides hold and the
-/// board's diagonals cross at the disc; or three hold, two opposite ones
-/// equally far; or [`MIN_BOARD_SIDES`] hold at nearly one distance; or
-/// fewer, with [`MIN_END_AGREEMENT`] of all end points on the square. A
+/// board's diagonals cross at the disc; or sides hold at nearly one
+/// distance with [`MIN_END_AGREEMENT`] of all end points on them. A
 /// round board (a ring around a disc) fails: the agreeing points of a
 /// square reach sqrt 2 farther at its corners than at its sides' middles, a
 /// circle's do not. So does a roof with a tank off its centre: its sides
@@ -548,29 +540,9 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
                 consider(reach.len(), half);
             }
         }
-        // Three sides: two opposite ones about equally far (the disc is
-        // centred between them), the third as far as perspective allows.
-        if held.len() == 3 {
-            let odd = (0..3).find(|&i| {
-                held.iter()
-                    .all(|h| h.0 % 2 != held[i].0 % 2 || h.0 == held[i].0)
-            });
-            if let Some(i) = odd {
-                let pair: Vec<f64> = (0..3).filter(|&j| j != i).map(|j| held[j].1).collect();
-                let mean = (pair[0] + pair[1]) / 2.0;
-                let centred = pair[0].max(pair[1]) / pair[0].min(pair[1]) <= MAX_SIDE_RATIO;
-                let odd = held[i].1;
-                if centred && odd.max(mean) / odd.min(mean) <= MAX_PERSPECTIVE_RATIO {
-                    let reach: Vec<f64> = held.iter().flat_map(|h| h.2.iter().copied()).collect();
-                    if cornered(&reach) {
-                        consider(reach.len(), (mean + odd) / 2.0);
-                    }
-                }
-            }
-        }
-        // Or the most sides at nearly one distance: an object may hide one,
-        // ground of the board's grey (a shadow) two; then most of all end
-        // points must still lie on the square.
+        // Or sides at nearly one distance, most of all end points on them:
+        // an object or ground of the board's grey (a shadow) may hide the
+        // rest. A roof's tank off its centre lies nearer some sides.
         let mut halves: Vec<f64> = held.iter().map(|h| h.1).collect();
         halves.sort_by(f64::total_cmp);
         for (i, &lo) in halves.iter().enumerate() {
@@ -587,10 +559,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
                 .map(|s| s.0 .0.hypot(s.0 .1))
                 .collect();
             let agree = reach.len();
-            if same.len() < MIN_BOARD_SIDES && (agree as f64) < MIN_END_AGREEMENT * n as f64 {
-                continue;
-            }
-            if cornered(&reach) {
+            if agree as f64 >= MIN_END_AGREEMENT * n as f64 && cornered(&reach) {
                 consider(agree, half);
             }
         }

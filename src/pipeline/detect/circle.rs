@@ -498,7 +498,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         }
         // Sides that hold: their median distance, and how far from the
         // centre their agreeing points lie.
-        let mut held: Vec<(usize, f64, Vec<f64>)> = Vec::new();
+        let mut held: Vec<(f64, Vec<f64>)> = Vec::new();
         let mut lines: [Option<Vec<Pt>>; 4] = Default::default();
         for (k, side) in sides.iter().enumerate() {
             if side.is_empty() {
@@ -513,7 +513,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
                 continue;
             }
-            held.push((k, m, on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect()));
+            held.push((m, on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect()));
             // The side's line from points away from the corners, where
             // perspective may put a point on the neighbouring side.
             let middle: Vec<Pt> = on.iter().filter(|s| s.2 < 0.5).map(|s| s.0).collect();
@@ -532,8 +532,8 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         // so long as the board's own centre (where its diagonals cross) is
         // the disc's.
         if held.len() == 4 {
-            let reach: Vec<f64> = held.iter().flat_map(|h| h.2.iter().copied()).collect();
-            let half = held.iter().map(|h| h.1).sum::<f64>() / 4.0;
+            let reach: Vec<f64> = held.iter().flat_map(|h| h.1.iter().copied()).collect();
+            let half = held.iter().map(|h| h.0).sum::<f64>() / 4.0;
             let centred = board_centre(&lines)
                 .is_some_and(|c| c.0.hypot(c.1) < MAX_CENTRE_OFFSET * half + 1.0);
             if centred && cornered(&reach) {
@@ -543,7 +543,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         // Or sides at nearly one distance, most of all end points on them:
         // an object or ground of the board's grey (a shadow) may hide the
         // rest. A roof's tank off its centre lies nearer some sides.
-        let mut halves: Vec<f64> = held.iter().map(|h| h.1).collect();
+        let mut halves: Vec<f64> = held.iter().map(|h| h.0).collect();
         halves.sort_by(f64::total_cmp);
         for (i, &lo) in halves.iter().enumerate() {
             let same: Vec<f64> = halves[i..]

@@ -773,9 +773,11 @@ fn measure_arm(
         };
         if t <= reference_end {
             near.push(f);
-            if let (Some(l), Some(r)) = (level(t, o), level(t, -o)) {
-                sides.0.push(l);
-                sides.1.push(r);
+            if kind == Kind::Checker {
+                if let (Some(l), Some(r)) = (level(t, o), level(t, -o)) {
+                    sides.0.push(l);
+                    sides.1.push(r);
+                }
             }
         } else {
             if strength == 0.0 {
@@ -815,24 +817,27 @@ fn measure_arm(
     let mut active = 0;
     let mut flipped = 0;
     let mut total = 0;
-    // The quadrants' contrast as a log ratio: a shadow over paving scales
-    // both its tiles and keeps it.
-    let ratio = harmonic::log_grey(pr::quantile(&sides.0, 0.5))
-        - harmonic::log_grey(pr::quantile(&sides.1, 0.5));
+    // Paving's boundary flips between the same two tiles, lit or in shadow
+    // alike (a shadow scales both, so their log ratio holds); a shadow edge
+    // or a stripe continuing a target's boundary separates ground from
+    // something else, at another ratio. Checkers only.
+    let ratio = if sides.0.is_empty() {
+        0.0
+    } else {
+        harmonic::log_grey(pr::quantile(&sides.0, 0.5))
+            - harmonic::log_grey(pr::quantile(&sides.1, 0.5))
+    };
+    let flips_tiles = |t: f64| match (level(t, o), level(t, -o)) {
+        (Some(l), Some(r)) => {
+            let flipped = harmonic::log_grey(r) - harmonic::log_grey(l);
+            (flipped - ratio).abs() < FLIP_RATIO * ratio.abs()
+        }
+        _ => false,
+    };
     let mut t = from;
     while t <= to {
         let Some(f) = feature(img, kind, c, a, t, o, polarity) else {
             break;
-        };
-        // Paving's boundary flips between the same two tiles, lit or in
-        // shadow alike; a shadow edge or a stripe continuing a target's
-        // boundary separates ground from something else, at another ratio.
-        let swapped = match (level(t, o), level(t, -o)) {
-            (Some(l), Some(r)) => {
-                let flipped_ratio = harmonic::log_grey(r) - harmonic::log_grey(l);
-                (flipped_ratio - ratio).abs() < FLIP_RATIO * ratio.abs()
-            }
-            _ => false,
         };
         // A cross's bar continues as a bright bar (a grid line); a checker's
         // boundary continues as the same edge (a long straight edge) or, in
@@ -844,8 +849,9 @@ fn measure_arm(
         };
         active += continues as usize;
         // A flip as strong as the junction is paving whatever its levels.
-        let paving_like = f <= -0.7 * strength || (f <= -0.4 * strength && swapped);
-        flipped += (kind == Kind::Checker && paving_like) as usize;
+        let paving = kind == Kind::Checker
+            && (f <= -0.7 * strength || (f <= -0.4 * strength && flips_tiles(t)));
+        flipped += paving as usize;
         total += 1;
         t += 1.0;
     }

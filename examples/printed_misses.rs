@@ -171,6 +171,34 @@ fn main() {
                             "  imprecise {:?} size {:.0} err {e:.3} contrast {:.2} shadow {} persp {:.3} rms {:?}",
                             spec.design, spec.size_px, spec.contrast, spec.shadow, spec.perspective, d.detection.fit_rms_px
                         );
+                        if std::env::var("BOARD").is_ok() {
+                            use gcp_tagger::pipeline::detect::geometry::{apply, square_to_quad};
+                            let h = square_to_quad(&t.corners);
+                            let b = [(-0.5, -0.5), (1.5, -0.5), (1.5, 1.5), (-0.5, 1.5)]
+                                .map(|p| apply(&h, p));
+                            for k in 0..4 {
+                                let (p, q) = (b[k], b[(k + 1) % 4]);
+                                let d = (q.0 - p.0, q.1 - p.1);
+                                let l = d.0.hypot(d.1);
+                                let n = (-d.1 / l, d.0 / l);
+                                let dist =
+                                    ((p.0 - t.center.0) * n.0 + (p.1 - t.center.1) * n.1).abs();
+                                eprintln!(
+                                    "    truth side dist {dist:.2} normal {:.2}",
+                                    n.1.atan2(n.0).to_degrees().rem_euclid(180.0)
+                                );
+                            }
+                            eprintln!(
+                                "    truth centre {:.2},{:.2} found {:.2},{:.2}",
+                                t.center.0, t.center.1, c.0, c.1
+                            );
+                            crop(
+                                &img,
+                                t.center,
+                                (1.5 * t.side_px) as usize,
+                                &format!("imprecise{seed}_{}", t.id),
+                            );
+                        }
                     }
                 }
                 None => {

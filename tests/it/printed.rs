@@ -85,10 +85,6 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
     Figures { recall, errors }
 }
 
-// Issue 3 asks for recall >= 98%: crosshair reaches 98.3% on these frames,
-// circle 96.7% (README, "Printed targets"); its floor guards that level
-// until the gap is closed. The precision targets are asserted in full.
-
 #[test]
 fn crosshair_and_checker_targets_are_found_to_a_tenth_of_a_pixel() {
     let f = measure(MarkerType::Crosshair, 300);
@@ -101,7 +97,7 @@ fn crosshair_and_checker_targets_are_found_to_a_tenth_of_a_pixel() {
 #[test]
 fn bullseye_and_disc_centres_are_subpixel() {
     let f = measure(MarkerType::Circle, 400);
-    assert!(f.recall >= 0.96, "recall {}", f.recall);
+    assert!(f.recall >= 0.98, "recall {}", f.recall);
     let [bullseye, disc] = &f.errors;
     assert!(quantile(bullseye, 0.5) <= 0.1, "bullseye median");
     assert!(quantile(bullseye, 0.95) <= 0.3, "bullseye p95");

@@ -52,6 +52,17 @@ const MAX_SIDE_RATIO: f64 = 1.15;
 /// fraction of its half side (plus a pixel): pixel-level side lines place
 /// its centre to ~1 px; a tank off a flat roof's centre is off by 15%+.
 const MAX_CENTRE_OFFSET: f64 = 0.06;
+/// Largest turn of a board's side off the square's normal (degrees): mild
+/// perspective turns opposite sides by a few degrees each.
+const MAX_SIDE_TILT_DEG: i32 = 6;
+/// Turn of a side tried either way when its board is found by levels.
+const LEVEL_TILT_DEG: f64 = 3.0;
+/// Least drop in the share of columns at the board's level where a side
+/// found by levels ends.
+const MIN_LEVEL_DROP: f64 = 0.4;
+/// Largest RMS distance of a board side's subpixel edge points from their
+/// line (a clean side: 0.3-0.6 px).
+const MAX_SIDE_RMS_PX: f64 = 0.8;
 /// A contour is an ellipse when its area is this close to its fit's.
 const ROUNDNESS: (f64, f64) = (0.85, 1.15);
 
@@ -394,6 +405,8 @@ fn board_horizon(
 ) -> Result<Option<[f64; 3]>, &'static str> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
+    let mut contrasts: Vec<f64> = Vec::new();
+    let mut curvature: Vec<f64> = Vec::new();
     let mut uniform = 0;
     for i in 0..n {
         let phi = std::f64::consts::TAU * i as f64 / n as f64;
@@ -413,6 +426,8 @@ fn board_horizon(
             continue;
         }
         uniform += 1;
+        contrasts.push(contrast.abs());
+        curvature.push((b1 - 2.0 * b2 + b3).abs());
         // Walk out to where the board ends.
         let len = d.0.hypot(d.1);
         let mut s = 1.65;
@@ -436,10 +451,23 @@ fn board_horizon(
     if (uniform as f64) < 0.8 * n as f64 {
         return Err("board not uniform");
     }
-    if (ends.len() as f64) < MIN_END_AGREEMENT * n as f64 {
-        return Err("board does not end");
+    let contrast = pr::quantile(&contrasts, 0.5);
+    // The board's noise: second differences of its three samples per ray
+    // (a shading gradient cancels), a robust standard deviation.
+    let noise = 1.4826 * pr::quantile(&curvature, 0.5) / 6f64.sqrt();
+    let fitted = if (ends.len() as f64) < MIN_END_AGREEMENT * n as f64 {
+        Err("board does not end")
+    } else {
+        fit_board_square(&ends, n).ok_or("board not square")
+    };
+    // Ground of nearly the board's grey runs rays past the board's end here
+    // and there; the sides still show where the board's level stops.
+    let levels = Levels::new(img, e, contrast, noise);
+    let mut square =
+        fitted.or_else(|why| board_by_levels(&levels, board_orientation(&ends)).ok_or(why))?;
+    if square.sides.iter().any(Option::is_none) {
+        complete_by_levels(&levels, &mut square);
     }
-    let square = fit_board_square(&ends, n).ok_or("board not square")?;
     let ratio = square.half / e.radius();
     if !(BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio) {
         return Err("board not square");
@@ -466,6 +494,9 @@ fn board_horizon(
 struct BoardSquare {
     /// Mean distance of the held sides from the disc's centre.
     half: f64,
+    /// Orientation of the square (radians): side k's outward normal is
+    /// at psi + k pi/2.
+    psi: f64,
     /// Each side's end points (relative to the disc's centre) lying on it,
     /// None for a side too few points agree on (hidden or unseen).
     sides: [Option<Vec<Pt>>; 4],
@@ -487,15 +518,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
     let mut best: Option<(usize, BoardSquare)> = None;
     for deg in 0..90 {
         let psi = (deg as f64).to_radians();
-        // Per side: point, distance along the side's normal, angle off it.
-        let mut sides: [Vec<(Pt, f64, f64)>; 4] = Default::default();
-        for p in ends {
-            let a = (p.1.atan2(p.0) - psi).rem_euclid(std::f64::consts::TAU);
-            let k = (a / std::f64::consts::FRAC_PI_2).round() as usize % 4;
-            // cos is even and 2pi-periodic: no wrap-around to mind.
-            let off = a - k as f64 * std::f64::consts::FRAC_PI_2;
-            sides[k].push((*p, p.0.hypot(p.1) * off.cos(), off.sin().abs()));
-        }
+        let sides = assign_sides(ends, psi);
         // Sides that hold: their median distance, and how far from the
         // centre their agreeing points lie.
         let mut held: Vec<(f64, Vec<f64>)> = Vec::new();
@@ -504,19 +527,43 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             if side.is_empty() {
                 continue;
             }
-            let h: Vec<f64> = side.iter().map(|s| s.1).collect();
-            let m = pr::quantile(&h, 0.5);
-            let on: Vec<&(Pt, f64, f64)> = side
-                .iter()
-                .filter(|s| (s.1 - m).abs() < SQUARE_TOLERANCE * m)
-                .collect();
+            // Perspective turns each side a little off the square's normal:
+            // the side's own tilt that most of its points agree on.
+            let mut side_best: Option<(f64, Vec<(Pt, f64)>)> = None;
+            // Nearest the square first: a tie keeps the smaller tilt.
+            let tilts = (0..=MAX_SIDE_TILT_DEG).flat_map(|t| [t, -t]).skip(1);
+            for tilt in tilts {
+                let theta =
+                    psi + k as f64 * std::f64::consts::FRAC_PI_2 + (tilt as f64).to_radians();
+                let normal = (theta.cos(), theta.sin());
+                let h: Vec<f64> = side
+                    .iter()
+                    .map(|s| s.0 .0 * normal.0 + s.0 .1 * normal.1)
+                    .collect();
+                let m = pr::quantile(&h, 0.5);
+                let on: Vec<(Pt, f64)> = side
+                    .iter()
+                    .zip(&h)
+                    .filter(|(_, d)| (*d - m).abs() < SQUARE_TOLERANCE * m)
+                    .map(|(s, d)| {
+                        (
+                            s.0,
+                            (1.0 - (d / s.0 .0.hypot(s.0 .1)).powi(2)).max(0.0).sqrt(),
+                        )
+                    })
+                    .collect();
+                if side_best.as_ref().is_none_or(|b| on.len() > b.1.len()) {
+                    side_best = Some((m, on));
+                }
+            }
+            let Some((m, on)) = side_best else { continue };
             if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
                 continue;
             }
             held.push((m, on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect()));
             // The side's line from points away from the corners, where
             // perspective may put a point on the neighbouring side.
-            let middle: Vec<Pt> = on.iter().filter(|s| s.2 < 0.5).map(|s| s.0).collect();
+            let middle: Vec<Pt> = on.iter().filter(|s| s.1 < 0.5).map(|s| s.0).collect();
             lines[k] = (middle.len() >= 4).then_some(middle);
         }
         // A round board (a ring around a disc) fits a square loosely too; a
@@ -525,7 +572,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         let mut consider = |agree: usize, half: f64| {
             if best.as_ref().is_none_or(|b| agree > b.0) {
                 let sides = lines.clone();
-                best = Some((agree, BoardSquare { half, sides }));
+                best = Some((agree, BoardSquare { half, psi, sides }));
             }
         };
         // All four sides seen: at whatever distances perspective gives them,
@@ -565,6 +612,256 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         }
     }
     best.map(|b| b.1)
+}
+
+/// End points `ends` assigned to the nearest side of a square at
+/// orientation `psi`: per side, each point, its distance along the side's
+/// normal and the sine of its angle off that normal.
+fn assign_sides(ends: &[Pt], psi: f64) -> [Vec<(Pt, f64, f64)>; 4] {
+    let mut sides: [Vec<(Pt, f64, f64)>; 4] = Default::default();
+    for p in ends {
+        let a = (p.1.atan2(p.0) - psi).rem_euclid(std::f64::consts::TAU);
+        let k = (a / std::f64::consts::FRAC_PI_2).round() as usize % 4;
+        // cos is even and 2pi-periodic: no wrap-around to mind.
+        let off = a - k as f64 * std::f64::consts::FRAC_PI_2;
+        sides[k].push((*p, p.0.hypot(p.1) * off.cos(), off.sin().abs()));
+    }
+    sides
+}
+
+/// The square orientation (radians, 0 to pi/2) most of the end points `ends`
+/// agree with: the one where most lie on their side's median distance.
+fn board_orientation(ends: &[Pt]) -> f64 {
+    let mut best = (0usize, 0.0);
+    for deg in 0..90 {
+        let psi = (deg as f64).to_radians();
+        let agree: usize = assign_sides(ends, psi)
+            .iter()
+            .filter(|side| !side.is_empty())
+            .map(|side| {
+                let h: Vec<f64> = side.iter().map(|s| s.1).collect();
+                let m = pr::quantile(&h, 0.5);
+                h.iter()
+                    .filter(|d| (*d - m).abs() < SQUARE_TOLERANCE * m)
+                    .count()
+            })
+            .sum();
+        if agree > best.0 {
+            best = (agree, psi);
+        }
+    }
+    best.1
+}
+
+/// A profile across a board's side: where along the side, the board's
+/// level next to the disc, the samples outward (1 px apart from
+/// 1.3x the disc's radius) and whether each is at the board's level.
+struct Column {
+    u: f64,
+    level: f64,
+    values: Vec<f64>,
+    on: Vec<bool>,
+}
+
+/// What tells a disc's board from its ground by level: the disc, and how
+/// far from the board's level a sample may lie and still be board.
+struct Levels<'a> {
+    img: &'a GreyView<'a>,
+    e: &'a Ellipse,
+    tol: f64,
+}
+
+/// One side of a board found by levels: its edge points (relative to the
+/// disc's centre), its distance from the disc and its outward normal.
+struct LevelSide {
+    points: Vec<Pt>,
+    distance: f64,
+    normal: Pt,
+}
+
+impl Levels<'_> {
+    /// `contrast` between disc and board, `noise` of the board's samples:
+    /// the board's level within 4 noise deviations, or a tenth of the
+    /// contrast where shading across a large board exceeds its noise.
+    fn new<'a>(img: &'a GreyView<'a>, e: &'a Ellipse, contrast: f64, noise: f64) -> Levels<'a> {
+        let tol = (4.0 * noise).max(0.1 * contrast).max(8.0);
+        Levels { img, e, tol }
+    }
+
+    fn at(&self, p: Pt) -> Option<f64> {
+        self.img.sample(self.e.c.0 + p.0, self.e.c.1 + p.1)
+    }
+
+    /// The side whose outward normal is near direction `theta`: columns
+    /// along normals within two tilts of it start at the board's level next
+    /// to the disc; the share of columns still at that level drops from
+    /// all to few where the board ends, whatever the ground does column by
+    /// column. Each column's own end near that drop (its crossing halfway
+    /// to the ground's level past it) gives the side's edge points.
+    fn side(&self, theta: f64) -> Option<LevelSide> {
+        let r = self.e.radius();
+        let h_lo = 1.3 * r;
+        let bins = ((BOARD_TO_DISC.1 + 0.3 - 1.3) * r) as usize + 1;
+        // Drop window: a fraction of the disc's radius, several pixels.
+        let w = (0.3 * r).max(6.0) as usize;
+        // The drop, where it is, the normal and tangent, the columns.
+        let mut best: Option<(f64, f64, Pt, Pt, Vec<Column>)> = None;
+        for tilt in [0.0, -1.0, 1.0, -2.0, 2.0].map(|f| f * LEVEL_TILT_DEG) {
+            let a = theta + f64::to_radians(tilt);
+            let (n, t) = ((a.cos(), a.sin()), (-a.sin(), a.cos()));
+            let columns = self.columns(n, t, h_lo, bins);
+            if columns.len() < 8 {
+                continue;
+            }
+            let frac: Vec<f64> = (0..bins)
+                .map(|b| columns.iter().filter(|c| c.on[b]).count() as f64 / columns.len() as f64)
+                .collect();
+            let mut here: Option<(f64, f64)> = None;
+            for b in w..bins.saturating_sub(w) {
+                let inside = frac[b - w..b].iter().sum::<f64>() / w as f64;
+                let outside = frac[b..b + w].iter().sum::<f64>() / w as f64;
+                let drop = inside - outside;
+                if inside >= 0.8 && here.is_none_or(|x| drop > x.0) {
+                    here = Some((drop, h_lo + b as f64));
+                }
+            }
+            if let Some((drop, h)) = here {
+                if best.as_ref().is_none_or(|x| drop > x.0) {
+                    best = Some((drop, h, n, t, columns));
+                }
+            }
+        }
+        let (drop, h, n, t, columns) = best?;
+        if drop < MIN_LEVEL_DROP {
+            return None;
+        }
+        // Each column's end: the first of two samples off the board's level
+        // from a window before the drop, then where the column crosses
+        // halfway between the board's level and the ground's just past it.
+        let start = (h - h_lo) as usize - w;
+        let points: Vec<Pt> = columns
+            .iter()
+            .filter_map(|c| {
+                let j = (start..bins - 1).find(|&j| !c.on[j] && !c.on[j + 1])?;
+                let ground = pr::mean(&c.values, j + 1, (j + 4).min(bins));
+                let mid = (c.level + ground) / 2.0;
+                let x = pr::crossing(&c.values, mid, ground > c.level, j as f64)?;
+                let edge = h_lo + x;
+                ((edge - h).abs() <= w as f64)
+                    .then(|| (n.0 * edge + t.0 * c.u, n.1 * edge + t.1 * c.u))
+            })
+            .collect();
+        if (points.len() as f64) < MIN_SIDE_SUPPORT * columns.len() as f64 {
+            return None;
+        }
+        let ((p, d), inliers) = pr::robust_line(&points)?;
+        let mut normal = (-d.1, d.0);
+        let mut distance = p.0 * normal.0 + p.1 * normal.1;
+        if distance < 0.0 {
+            (normal, distance) = ((-normal.0, -normal.1), -distance);
+        }
+        Some(LevelSide {
+            points: inliers,
+            distance,
+            normal,
+        })
+    }
+
+    /// Columns along normal `n`, every 1.5 px along the side's middle
+    /// (tangent `t`), each sampled `bins` times from `h_lo` out.
+    fn columns(&self, n: Pt, t: Pt, h_lo: f64, bins: usize) -> Vec<Column> {
+        let r = self.e.radius();
+        let mut columns = Vec::new();
+        let mut u = -0.9 * r;
+        while u <= 0.9 * r {
+            let point = |h: f64| (n.0 * h + t.0 * u, n.1 * h + t.1 * u);
+            let inner: Option<Vec<f64>> = [1.15, 1.2, 1.25]
+                .iter()
+                .map(|f| self.at(point(f * r)))
+                .collect();
+            let values: Option<Vec<f64>> =
+                (0..bins).map(|b| self.at(point(h_lo + b as f64))).collect();
+            if let (Some(inner), Some(values)) = (inner, values) {
+                let level = inner.iter().sum::<f64>() / 3.0;
+                let on = values
+                    .iter()
+                    .map(|v| (v - level).abs() <= self.tol)
+                    .collect();
+                columns.push(Column {
+                    u,
+                    level,
+                    values,
+                    on,
+                });
+            }
+            u += 1.5;
+        }
+        columns
+    }
+
+    /// Whether the board's level reaches past the nearer of two
+    /// neighbouring sides' distances along the diagonal between them (a
+    /// square's corner; a round board stops there).
+    fn corner(&self, a: &LevelSide, b: &LevelSide) -> bool {
+        let r = self.e.radius();
+        let diag = (a.normal.0 + b.normal.0, a.normal.1 + b.normal.1);
+        let len = diag.0.hypot(diag.1);
+        let diag = (diag.0 / len, diag.1 / len);
+        let sample = |f: f64| self.at((diag.0 * f, diag.1 * f));
+        let (Some(b1), Some(b2)) = (sample(1.15 * r), sample(1.25 * r)) else {
+            return false;
+        };
+        let level = (b1 + b2) / 2.0;
+        let reach = a.distance.min(b.distance);
+        [1.1, 1.2, 1.3]
+            .iter()
+            .all(|f| sample(f * reach).is_some_and(|v| (v - level).abs() <= self.tol))
+    }
+}
+
+/// A disc's board found by levels (for boards on ground of nearly their
+/// grey, where rays run past the board's end here and there), the square's
+/// orientation `psi` taken from the rays' ends. All four sides must show
+/// their drop, the board's diagonals must cross at the disc, and at least
+/// three corners must reach past the sides.
+fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> {
+    let sides: Vec<LevelSide> = (0..4)
+        .map(|k| levels.side(psi + k as f64 * std::f64::consts::FRAC_PI_2))
+        .collect::<Option<_>>()?;
+    let half = sides.iter().map(|s| s.distance).sum::<f64>() / 4.0;
+    let lines: [Option<Vec<Pt>>; 4] = std::array::from_fn(|k| Some(sides[k].points.clone()));
+    let centre = board_centre(&lines)?;
+    if centre.0.hypot(centre.1) >= MAX_CENTRE_OFFSET * half + 1.0 {
+        return None;
+    }
+    let corners = (0..4)
+        .filter(|&k| levels.corner(&sides[k], &sides[(k + 1) % 4]))
+        .count();
+    (corners >= 3).then_some(BoardSquare {
+        half,
+        psi,
+        sides: lines,
+    })
+}
+
+/// A board accepted without all four sides' edge points: the missing sides
+/// found by levels, kept only when the four sides' diagonals then cross at
+/// the disc (else the board keeps its missing sides, and the disc the
+/// ellipse's centre).
+fn complete_by_levels(levels: &Levels, square: &mut BoardSquare) {
+    let mut sides = square.sides.clone();
+    for (k, side) in sides.iter_mut().enumerate() {
+        if side.is_none() {
+            let theta = square.psi + k as f64 * std::f64::consts::FRAC_PI_2;
+            let found = levels.side(theta);
+            let Some(found) = found else { return };
+            *side = Some(found.points);
+        }
+    }
+    if board_centre(&sides).is_some_and(|c| c.0.hypot(c.1) < MAX_CENTRE_OFFSET * square.half + 1.0)
+    {
+        square.sides = sides;
+    }
 }
 
 /// Where the diagonals of the quadrilateral bounded by four side lines
@@ -639,7 +936,10 @@ fn board_side(
     if points.len() < 6 {
         return None;
     }
-    pr::robust_line(&points).map(|(l, _)| l)
+    // Ground texture crossing the midpoint scatters a faint side's points:
+    // no subpixel line there.
+    let (line, inliers) = pr::robust_line(&points)?;
+    (pr::line_rms(&inliers, line) <= MAX_SIDE_RMS_PX).then_some(line)
 }
 
 fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

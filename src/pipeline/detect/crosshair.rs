@@ -1076,7 +1076,7 @@ fn grid_lines_around(
                     (at(line), at(line - bar / 2.0 - o), at(line + bar / 2.0 + o))
                 {
                     total += 1;
-                    bright += (mid - inside.max(outside) >= 0.4 * strength) as usize;
+                    bright += (mid - inside.max(outside) >= 0.25 * strength) as usize;
                 }
             }
             lines += (total == 5 && bright >= 3) as usize;

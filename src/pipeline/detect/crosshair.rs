@@ -58,6 +58,10 @@ const ARM_TO_BAR: (f64, f64) = (1.2, 7.0);
 /// Past a checker arm's end, a flipped boundary is paving when its log
 /// contrast ratio is the quadrants' within this fraction.
 const FLIP_RATIO: f64 = 0.5;
+/// Paving flips in a row (1 px apart) right past a checker arm's gap that
+/// make it paving even where the paving is a single tile wide (a strip's
+/// end, paving under other clutter).
+const MIN_LEAD_FLIPS: usize = 4;
 /// Largest RMS distance of edge points from their fitted line: above it the
 /// "lines" are not straight (a fold, an object on the target, clutter).
 const MAX_FIT_RMS_PX: f64 = 0.45;
@@ -816,6 +820,9 @@ fn measure_arm(
     let to = from + (0.6 * length).max(6.0);
     let mut active = 0;
     let mut flipped = 0;
+    // Flipped samples in a row from the gap on: a tile of paving right
+    // past the arm's end, however far the paving goes beyond it.
+    let mut lead = 0;
     let mut total = 0;
     // Paving's boundary flips between the same two tiles, lit or in shadow
     // alike (a shadow scales both, so their log ratio holds); a shadow edge
@@ -852,10 +859,13 @@ fn measure_arm(
         let paving = kind == Kind::Checker
             && (f <= -0.7 * strength || (f <= -0.4 * strength && flips_tiles(t)));
         flipped += paving as usize;
+        if paving && lead == total {
+            lead += 1;
+        }
         total += 1;
         t += 1.0;
     }
-    if total > 0 && flipped * 2 > total {
+    if total > 0 && (flipped * 2 > total || lead >= MIN_LEAD_FLIPS) {
         // Paving continues the boundary on the arm's own line; an edge of
         // something else crosses the profiles wherever it happens to lie.
         let (mut aligned, mut tried) = (0, 0);

@@ -108,12 +108,14 @@ fn bullseye_and_disc_centres_are_subpixel() {
 }
 
 /// Solar panels, paving checkers, road crosses, manholes, pyramid roofs,
-/// tanks on roofs, cars, windows, discs and rings: nothing is a target.
+/// tanks on roofs, cars, windows, discs and rings: nothing is a target, on
+/// 10 frames (seeds 700-709; 705, 707 and 709 held look-alikes that earlier
+/// versions took for targets).
 #[test]
 fn lookalike_clutter_gives_no_detection() {
     let dir = tempfile::tempdir().unwrap();
     let modes = [MarkerType::Crosshair, MarkerType::Circle];
-    for seed in 0..3 {
+    for seed in 0..10 {
         let scene = clutter_scene(2400, 1800, 700 + seed);
         let name = format!("clutter{seed}.png");
         let (path, _) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);

@@ -529,34 +529,41 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             }
             // Perspective turns each side a little off the square's normal:
             // the side's own tilt that most of its points agree on.
-            let mut side_best: Option<(f64, Vec<(Pt, f64)>)> = None;
+            // (tilt's normal, median distance, points agreeing), counted
+            // first and collected for the best tilt only.
+            let mut side_best: Option<(Pt, f64, usize)> = None;
+            let mut h: Vec<f64> = Vec::with_capacity(side.len());
             // Nearest the square first: a tie keeps the smaller tilt.
             let tilts = (0..=MAX_SIDE_TILT_DEG).flat_map(|t| [t, -t]).skip(1);
             for tilt in tilts {
                 let theta =
                     psi + k as f64 * std::f64::consts::FRAC_PI_2 + (tilt as f64).to_radians();
                 let normal = (theta.cos(), theta.sin());
-                let h: Vec<f64> = side
+                h.clear();
+                h.extend(side.iter().map(|s| s.0 .0 * normal.0 + s.0 .1 * normal.1));
+                let mid = h.len() / 2;
+                let m = *h.select_nth_unstable_by(mid, f64::total_cmp).1;
+                let agree = h
                     .iter()
-                    .map(|s| s.0 .0 * normal.0 + s.0 .1 * normal.1)
-                    .collect();
-                let m = pr::quantile(&h, 0.5);
-                let on: Vec<(Pt, f64)> = side
-                    .iter()
-                    .zip(&h)
-                    .filter(|(_, d)| (*d - m).abs() < SQUARE_TOLERANCE * m)
-                    .map(|(s, d)| {
-                        (
-                            s.0,
-                            (1.0 - (d / s.0 .0.hypot(s.0 .1)).powi(2)).max(0.0).sqrt(),
-                        )
-                    })
-                    .collect();
-                if side_best.as_ref().is_none_or(|b| on.len() > b.1.len()) {
-                    side_best = Some((m, on));
+                    .filter(|d| (*d - m).abs() < SQUARE_TOLERANCE * m)
+                    .count();
+                if side_best.is_none_or(|b| agree > b.2) {
+                    side_best = Some((normal, m, agree));
                 }
             }
-            let Some((m, on)) = side_best else { continue };
+            let Some((normal, m, _)) = side_best else {
+                continue;
+            };
+            // Each agreeing point with the sine of its angle off the normal.
+            let on: Vec<(Pt, f64)> = side
+                .iter()
+                .filter_map(|s| {
+                    let d = s.0 .0 * normal.0 + s.0 .1 * normal.1;
+                    let r = s.0 .0.hypot(s.0 .1);
+                    ((d - m).abs() < SQUARE_TOLERANCE * m)
+                        .then(|| (s.0, (1.0 - (d / r).powi(2)).max(0.0).sqrt()))
+                })
+                .collect();
             if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
                 continue;
             }

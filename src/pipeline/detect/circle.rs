@@ -504,8 +504,9 @@ struct BoardSquare {
 
 /// Fits a square centred on the origin to a board's end points `ends`
 /// (from `n` rays): for every orientation, each point is assigned to the
-/// nearest side and projected on that side's normal; a side holds when
-/// enough of its points agree with their median. The orientation with the
+/// nearest side and projected on that side's normal, turned by up to
+/// [`MAX_SIDE_TILT_DEG`] the way most of the side's points agree on; a side
+/// holds when enough of its points agree with their median. The orientation with the
 /// most agreeing points wins among those where: all four sides hold and the
 /// board's diagonals cross at the disc; or sides hold at nearly one
 /// distance with [`MIN_END_AGREEMENT`] of all end points on them. A

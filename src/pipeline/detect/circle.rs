@@ -1100,4 +1100,77 @@ mod tests {
             "{c:?} vs {truth:?} (bias was {bias})"
         );
     }
+
+    /// A white disc (radius 20) on a black board (half side 40, turned 20
+    /// degrees) centred `tank` px off the disc, on ground that has the
+    /// board's grey on every other diagonal band: 4x4-supersampled 8-bit.
+    fn board_on_ground_of_its_grey(tank: f64) -> (Vec<u8>, usize, Pt) {
+        let side = 240;
+        let disc = (120.3, 119.6);
+        let board = (disc.0 + tank, disc.1);
+        let (sin, cos) = 0.35f64.sin_cos();
+        let mut data = vec![0u8; side * side];
+        for y in 0..side {
+            for x in 0..side {
+                let mut sum = 0.0f64;
+                for s in 0..16 {
+                    let px = x as f64 - 0.375 + (s % 4) as f64 * 0.25;
+                    let py = y as f64 - 0.375 + (s / 4) as f64 * 0.25;
+                    let (dx, dy) = (px - board.0, py - board.1);
+                    let (u, v) = (dx * cos + dy * sin, -dx * sin + dy * cos);
+                    sum += if (px - disc.0).hypot(py - disc.1) < 20.0 {
+                        200.0
+                    } else if u.abs() < 40.0 && v.abs() < 40.0 {
+                        70.0
+                    } else if ((px + py) / 9.0).floor().rem_euclid(2.0) == 0.0 {
+                        72.0
+                    } else {
+                        120.0
+                    };
+                }
+                data[y * side + x] = (sum / 16.0).round() as u8;
+            }
+        }
+        (data, side, disc)
+    }
+
+    #[test]
+    fn a_board_on_ground_of_its_grey_is_found_by_its_level() {
+        let (data, side, disc) = board_on_ground_of_its_grey(0.0);
+        let img = GreyView {
+            data: &data,
+            width: side,
+            height: side,
+            stride: side,
+        };
+        let e = Ellipse {
+            c: disc,
+            a: 20.0,
+            b: 20.0,
+            u: (1.0, 0.0),
+        };
+        let levels = Levels::new(&img, &e, 130.0, 1.0);
+        let square = board_by_levels(&levels, 0.35).expect("board found by levels");
+        assert!(
+            (square.half - 40.0).abs() < 1.0,
+            "half side {}",
+            square.half
+        );
+        // To about a pixel, well inside what acceptance allows (3.4 px here):
+        // board_side then refines each side to subpixel precision.
+        let centre = board_centre(&square.sides).expect("centre");
+        assert!(centre.0.hypot(centre.1) < 1.0, "board centre {centre:?}");
+
+        // The same board 8 px off the disc (a tank off a roof's centre).
+        let (data, side, disc) = board_on_ground_of_its_grey(8.0);
+        let img = GreyView {
+            data: &data,
+            width: side,
+            height: side,
+            stride: side,
+        };
+        let e = Ellipse { c: disc, ..e };
+        let levels = Levels::new(&img, &e, 130.0, 1.0);
+        assert!(board_by_levels(&levels, 0.35).is_none());
+    }
 }

@@ -32,8 +32,11 @@ use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Fewest grey levels between a target's dark and light parts.
 const MIN_CONTRAST: f64 = 15.0;
-/// Fraction of rays that must find each edge.
-const MIN_COVERAGE: f64 = 0.75;
+/// Fraction of rays that must find each edge. Something across a
+/// bullseye's rings (clutter, a shadow edge) hides some of them: 0.75 lost
+/// two bullseyes in partial shadow on seeds 900-903; the ring ratios,
+/// alternating polarity and fit RMS still reject look-alikes.
+const MIN_COVERAGE: f64 = 0.55;
 /// Board side over disc diameter accepted for a disc target (designs: 2).
 const BOARD_TO_DISC: (f64, f64) = (1.4, 3.0);
 /// Largest RMS distance of edge points from their ellipse.

@@ -1139,21 +1139,24 @@ mod tests {
 
     #[test]
     fn a_board_on_ground_of_its_grey_is_found_by_its_level() {
-        let (data, side, disc) = board_on_ground_of_its_grey(0.0);
-        let img = GreyView {
-            data: &data,
-            width: side,
-            height: side,
-            stride: side,
+        // The board by levels around the disc of board_on_ground_of_its_grey.
+        let find = |tank: f64| {
+            let (data, side, disc) = board_on_ground_of_its_grey(tank);
+            let img = GreyView {
+                data: &data,
+                width: side,
+                height: side,
+                stride: side,
+            };
+            let e = Ellipse {
+                c: disc,
+                a: 20.0,
+                b: 20.0,
+                u: (1.0, 0.0),
+            };
+            board_by_levels(&Levels::new(&img, &e, 130.0, 1.0), 0.35)
         };
-        let e = Ellipse {
-            c: disc,
-            a: 20.0,
-            b: 20.0,
-            u: (1.0, 0.0),
-        };
-        let levels = Levels::new(&img, &e, 130.0, 1.0);
-        let square = board_by_levels(&levels, 0.35).expect("board found by levels");
+        let square = find(0.0).expect("board found by levels");
         assert!(
             (square.half - 40.0).abs() < 1.0,
             "half side {}",
@@ -1163,17 +1166,7 @@ mod tests {
         // board_side then refines each side to subpixel precision.
         let centre = board_centre(&square.sides).expect("centre");
         assert!(centre.0.hypot(centre.1) < 1.0, "board centre {centre:?}");
-
         // The same board 8 px off the disc (a tank off a roof's centre).
-        let (data, side, disc) = board_on_ground_of_its_grey(8.0);
-        let img = GreyView {
-            data: &data,
-            width: side,
-            height: side,
-            stride: side,
-        };
-        let e = Ellipse { c: disc, ..e };
-        let levels = Levels::new(&img, &e, 130.0, 1.0);
-        assert!(board_by_levels(&levels, 0.35).is_none());
+        assert!(find(8.0).is_none());
     }
 }

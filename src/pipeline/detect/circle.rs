@@ -592,9 +592,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         if held.len() == 4 {
             let reach: Vec<f64> = held.iter().flat_map(|h| h.1.iter().copied()).collect();
             let half = held.iter().map(|h| h.0).sum::<f64>() / 4.0;
-            let centred = board_centre(&lines)
-                .is_some_and(|c| c.0.hypot(c.1) < MAX_CENTRE_OFFSET * half + 1.0);
-            if centred && cornered(&reach) {
+            if centred_on_disc(&lines, half) && cornered(&reach) {
                 consider(reach.len(), half);
             }
         }
@@ -840,15 +838,12 @@ fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> {
         .map(|k| levels.side(psi + k as f64 * std::f64::consts::FRAC_PI_2))
         .collect::<Option<_>>()?;
     let half = sides.iter().map(|s| s.distance).sum::<f64>() / 4.0;
-    let lines: [Option<Vec<Pt>>; 4] = std::array::from_fn(|k| Some(sides[k].points.clone()));
-    let centre = board_centre(&lines)?;
-    if centre.0.hypot(centre.1) >= MAX_CENTRE_OFFSET * half + 1.0 {
-        return None;
-    }
     let corners = (0..4)
         .filter(|&k| levels.corner(&sides[k], &sides[(k + 1) % 4]))
         .count();
-    (corners >= 3).then_some(BoardSquare {
+    let mut points = sides.into_iter().map(|s| Some(s.points));
+    let lines: [Option<Vec<Pt>>; 4] = std::array::from_fn(|_| points.next().flatten());
+    (corners >= 3 && centred_on_disc(&lines, half)).then_some(BoardSquare {
         half,
         psi,
         sides: lines,
@@ -869,10 +864,16 @@ fn complete_by_levels(levels: &Levels, square: &mut BoardSquare) {
             *side = Some(found.points);
         }
     }
-    if board_centre(&sides).is_some_and(|c| c.0.hypot(c.1) < MAX_CENTRE_OFFSET * square.half + 1.0)
-    {
+    if centred_on_disc(&sides, square.half) {
         square.sides = sides;
     }
+}
+
+/// Whether the board bounded by four side lines (its half side `half`) has
+/// its centre at the disc's, within [`MAX_CENTRE_OFFSET`] of the half side
+/// plus a pixel.
+fn centred_on_disc(sides: &[Option<Vec<Pt>>; 4], half: f64) -> bool {
+    board_centre(sides).is_some_and(|c| c.0.hypot(c.1) < MAX_CENTRE_OFFSET * half + 1.0)
 }
 
 /// Where the diagonals of the quadrilateral bounded by four side lines

@@ -376,7 +376,9 @@ impl CrosshairDetector {
                 if !(ARM_TO_BAR.0..=ARM_TO_BAR.1).contains(&ratio) {
                     return Err("bar ratio");
                 }
-                if hi - lo > 0.6 * strength {
+                if hi - lo > 0.6 * strength
+                    && !shadow_explains_quadrants(img, centre, &dirs, &lengths, &quadrants)
+                {
                     return Err("quadrant levels differ");
                 }
             }
@@ -1147,6 +1149,39 @@ fn checker_quadrants_uniform(
     passed >= 28
 }
 
+/// Whether a shadow accounts for a cross's quadrants differing in level: a
+/// shadow scales a quadrant and the bars beside it alike, so each
+/// quadrant's level over its bars' (sampled as far out along them) holds.
+/// Quadrants of different materials around a bright cross (a road marking
+/// between asphalt and grass) keep their difference.
+fn shadow_explains_quadrants(
+    img: &GreyView,
+    c: Pt,
+    dirs: &[Pt; 2],
+    lengths: &[f64; 4],
+    quadrants: &[f64; 4],
+) -> bool {
+    let mut bars = [0.0; 4];
+    for (k, b) in bars.iter_mut().enumerate() {
+        let a = arm_dir(dirs, k);
+        let mut sum = 0.0;
+        for f in [0.45, 0.55, 0.65] {
+            let p = add(c, a, f * lengths[k]);
+            match img.sample(p.0, p.1) {
+                Some(v) => sum += v,
+                None => return false,
+            }
+        }
+        *b = sum / 3.0;
+    }
+    let ratios: [f64; 4] =
+        std::array::from_fn(|k| quadrants[k] / ((bars[k] + bars[(k + 1) % 4]) / 2.0).max(1.0));
+    let (lo, hi) = ratios
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), &r| (a.min(r), b.max(r)));
+    hi < 1.0 && hi - lo <= 0.6 * (1.0 - hi)
+}
+
 /// Mean grey level of each quadrant, between arm k and arm k+1, sampled on
 /// a small patch halfway along the bisector.
 fn quadrant_levels(img: &GreyView, c: Pt, dirs: &[Pt; 2], lengths: &[f64; 4]) -> Option<[f64; 4]> {
@@ -1205,6 +1240,40 @@ mod tests {
         // A plain edge (two halves) and a flat ring are neither.
         assert!(classify_ring(&basis, &ring_of(|a| if a < PI { 200.0 } else { 30.0 })).is_none());
         assert!(classify_ring(&basis, &ring_of(|_| 120.0)).is_none());
+    }
+
+    #[test]
+    fn a_shadow_explains_darker_quadrants_but_other_ground_does_not() {
+        // A 100 px cross (bars 24 px wide, grey 200) on dark quadrants (100)
+        // centred at (60, 60), axis-aligned.
+        let render = |shade: &dyn Fn(usize, usize) -> f64| {
+            let mut data = vec![0u8; 120 * 120];
+            for y in 0..120 {
+                for x in 0..120 {
+                    let on_bar = (x as i64 - 60).abs() < 12 || (y as i64 - 60).abs() < 12;
+                    let v = if on_bar { 200.0 } else { 100.0 };
+                    data[y * 120 + x] = (v * shade(x, y)) as u8;
+                }
+            }
+            data
+        };
+        let (dirs, lengths) = ([(1.0, 0.0), (0.0, 1.0)], [50.0; 4]);
+        let check = |data: &[u8]| {
+            let img = GreyView {
+                data,
+                width: 120,
+                height: 120,
+                stride: 120,
+            };
+            let q = quadrant_levels(&img, (60.0, 60.0), &dirs, &lengths).unwrap();
+            shadow_explains_quadrants(&img, (60.0, 60.0), &dirs, &lengths, &q)
+        };
+        // A shadow (x 0.5) over everything below y = 60 + 12: two quadrants
+        // and the bar between them darker, by the same factor.
+        assert!(check(&render(&|_, y| if y >= 72 { 0.5 } else { 1.0 })));
+        // One quadrant of lighter ground under lit bars: not a shadow.
+        let lighter = render(&|x, y| if x >= 72 && y >= 72 { 1.6 } else { 1.0 });
+        assert!(!check(&lighter));
     }
 
     #[test]

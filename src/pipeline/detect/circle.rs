@@ -834,15 +834,16 @@ impl Levels<'_> {
 /// their drop, the board's diagonals must cross at the disc, and at least
 /// three corners must reach past the sides.
 fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> {
-    let sides: Vec<LevelSide> = (0..4)
+    let sides: [LevelSide; 4] = (0..4)
         .map(|k| levels.side(psi + k as f64 * std::f64::consts::FRAC_PI_2))
-        .collect::<Option<_>>()?;
+        .collect::<Option<Vec<_>>>()?
+        .try_into()
+        .ok()?;
     let half = sides.iter().map(|s| s.distance).sum::<f64>() / 4.0;
     let corners = (0..4)
         .filter(|&k| levels.corner(&sides[k], &sides[(k + 1) % 4]))
         .count();
-    let mut points = sides.into_iter().map(|s| Some(s.points));
-    let lines: [Option<Vec<Pt>>; 4] = std::array::from_fn(|_| points.next().flatten());
+    let lines = sides.map(|s| Some(s.points));
     (corners >= 3 && centred_on_disc(&lines, half)).then_some(BoardSquare {
         half,
         psi,

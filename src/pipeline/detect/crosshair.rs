@@ -1164,14 +1164,14 @@ fn shadow_explains_quadrants(
     let mut bars = [0.0; 4];
     for (k, b) in bars.iter_mut().enumerate() {
         let a = arm_dir(dirs, k);
-        let mut sum = 0.0;
-        for f in [0.45, 0.55, 0.65] {
-            let p = add(c, a, f * lengths[k]);
-            match img.sample(p.0, p.1) {
-                Some(v) => sum += v,
-                None => return false,
-            }
-        }
+        let sum: Option<f64> = [0.45, 0.55, 0.65]
+            .iter()
+            .map(|f| {
+                let p = add(c, a, f * lengths[k]);
+                img.sample(p.0, p.1)
+            })
+            .sum();
+        let Some(sum) = sum else { return false };
         *b = sum / 3.0;
     }
     let ratios: [f64; 4] =

@@ -196,13 +196,12 @@ impl CircleDetector {
                 .unwrap_or(e.c);
             (c, 2.0 * outer.radius())
         } else {
-            // The disc's centre is the pole of the board plane's vanishing
-            // line with respect to the disc's conic (exact under perspective;
-            // the ellipse's own centre is biased). Without subpixel board
-            // sides (faint against the ground), the ellipse's centre.
-            let horizon = board_horizon(img, &e, pass.polarity[0])?;
-            let c = horizon
-                .and_then(|h| pole(&e, &h))
+            // The ellipse's own centre is biased under perspective; the
+            // board's subpixel sides tell where the disc's centre lies.
+            // Without a pair of opposite ones (sides faint against the
+            // ground, or hidden), the ellipse's centre.
+            let sides = board_sides(img, &e, pass.polarity[0])?;
+            let c = perspective_centre(&e, &sides)
                 .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
                 .unwrap_or(e.c);
             (c, 2.0 * e.radius())
@@ -397,15 +396,15 @@ fn rms(e: &Ellipse, points: &[Pt]) -> f64 {
 
 /// A disc's board: the other colour, uniform out to 1.25x the disc's radius
 /// on most rays, ending in a square of the designed proportions.
-/// Returns the image of the board plane's line at infinity (homogeneous, in
-/// coordinates relative to the disc's centre), from the vanishing points of
-/// its opposite sides; None when a side is too faint against the ground to
-/// fit to subpixel precision; an error when there is no such board.
-fn board_horizon(
+/// Returns the board's four sides as homogeneous lines in coordinates
+/// relative to the disc's centre, each fitted to subpixel precision, or None
+/// where a side is hidden or too faint against the ground for that; an error
+/// when there is no such board.
+fn board_sides(
     img: &GreyView,
     e: &Ellipse,
     polarity: f64,
-) -> Result<Option<[f64; 3]>, &'static str> {
+) -> Result<[Option<[f64; 3]>; 4], &'static str> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
     let mut contrasts: Vec<f64> = Vec::new();
@@ -476,21 +475,84 @@ fn board_horizon(
         return Err("board not square");
     }
     // A side hidden by something lying on or against the board (or ground
-    // of the board's grey) leaves no vanishing line: the ellipse's centre.
-    let mut lines = [[0.0; 3]; 4];
-    for (k, side) in square.sides.iter().enumerate() {
-        let Some(side) = side else { return Ok(None) };
+    // of the board's grey) has no line.
+    let mut lines = [None; 4];
+    for (line, side) in lines.iter_mut().zip(&square.sides) {
+        let Some(side) = side else { continue };
         let rough = super::refine::fit_line(side).ok_or("board side")?;
         // Subpixel where the profiles allow (ground of enough contrast);
-        // a vanishing line from pixel-level sides moves the centre more
-        // than the perspective bias it would remove.
-        let Some((p, d)) = board_side(img, e, rough, side, polarity) else {
-            return Ok(None);
-        };
-        lines[k] = cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]);
+        // pixel-level sides move the centre more than the perspective bias
+        // they would remove.
+        *line = board_side(img, e, rough, side, polarity)
+            .map(|(p, d)| cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]));
     }
-    let (v1, v2) = (cross3(lines[0], lines[2]), cross3(lines[1], lines[3]));
-    Ok(Some(cross3(v1, v2)))
+    Ok(lines)
+}
+
+/// The image of a disc's centre from its board's sides (homogeneous lines
+/// relative to the ellipse's centre, as [`board_sides`] gives them). With
+/// all four, the pole of the board plane's vanishing line (through the
+/// vanishing points of opposite sides) with respect to the disc's conic;
+/// with one pair of opposite sides, [`centre_between`]. Both are exact under
+/// perspective.
+fn perspective_centre(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> {
+    match sides {
+        [Some(a), Some(b), Some(c), Some(d)] => pole(e, &cross3(cross3(*a, *c), cross3(*b, *d))),
+        [Some(a), _, Some(c), _] | [_, Some(a), _, Some(c)] => centre_between(e, a, c),
+        _ => None,
+    }
+}
+
+/// The image of a disc's centre from two opposite sides `l0`, `l2` of its
+/// square board (homogeneous, relative to the ellipse's centre). On the
+/// board the sides are parallel, at -h and +h across the disc's diameter
+/// perpendicular to them, which touches the disc at -r and +r. That
+/// diameter's image is the polar of the sides' vanishing point; along it,
+/// the mirror x -> -x of the board becomes an involution that swaps the
+/// sides' crossings and the disc's two edge points, and the centre is its
+/// fixed point inside the ellipse.
+fn centre_between(e: &Ellipse, l0: &[f64; 3], l2: &[f64; 3]) -> Option<Pt> {
+    let conic = e.conic(e.c);
+    let times = |m: &[f64; 9], v: [f64; 3]| -> [f64; 3] {
+        std::array::from_fn(|r| (0..3).map(|i| m[r * 3 + i] * v[i]).sum())
+    };
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let diameter = times(&conic, cross3(*l0, *l2));
+    let norm = diameter[0].hypot(diameter[1]);
+    if norm < 1e-12 {
+        return None;
+    }
+    // The diameter as foot + s * dir.
+    let dir = [-diameter[1] / norm, diameter[0] / norm, 0.0];
+    let k = -diameter[2] / (norm * norm);
+    let foot = [diameter[0] * k, diameter[1] * k, 1.0];
+    let at = |s: f64| [foot[0] + s * dir[0], foot[1] + s * dir[1], 1.0];
+    let crossing = |l: &[f64; 3]| {
+        let along = dot(*l, dir);
+        (along.abs() > 1e-12).then(|| -dot(*l, foot) / along)
+    };
+    let (s0, s2) = (crossing(l0)?, crossing(l2)?);
+    // The disc's edge points: roots of a2 s^2 + 2 a1 s + a0 = 0.
+    let (a2, a1, a0) = (
+        dot(dir, times(&conic, dir)),
+        dot(dir, times(&conic, foot)),
+        dot(foot, times(&conic, foot)),
+    );
+    if a2.abs() < 1e-12 {
+        return None;
+    }
+    // Involution A s s' + B (s + s') + C = 0 through both pairs.
+    let [a, b, c] = cross3([a0 / a2, -2.0 * a1 / a2, 1.0], [s0 * s2, s0 + s2, 1.0]);
+    // Fixed points: A s^2 + 2 B s + C = 0; the centre is inside the disc.
+    let disc = b * b - a * c;
+    if disc < 0.0 || a.abs() < 1e-15 {
+        return None;
+    }
+    [(-b + disc.sqrt()) / a, (-b - disc.sqrt()) / a]
+        .into_iter()
+        .map(at)
+        .find(|x| dot(*x, times(&conic, *x)) < 0.0)
+        .map(|x| (x[0] + e.c.0, x[1] + e.c.1))
 }
 
 /// A square board centred on its disc, fitted to the end points of rays.
@@ -1104,6 +1166,48 @@ mod tests {
             geometry::dist(c, truth) < 0.02,
             "{c:?} vs {truth:?} (bias was {bias})"
         );
+    }
+
+    #[test]
+    fn two_opposite_board_sides_recover_the_projected_centre() {
+        let quad = [
+            (100.0, 100.0),
+            (400.0, 130.0),
+            (380.0, 420.0),
+            (90.0, 360.0),
+        ];
+        let h = square_to_quad(&quad);
+        let truth = apply(&h, (0.5, 0.5));
+        let disc = projected(&h, 0.2);
+        let bias = geometry::dist(disc.c, truth);
+        assert!(bias > 0.5, "ellipse centre bias only {bias}");
+        // A board side through two points of the unit square, relative to
+        // the ellipse's centre.
+        let side = |p: Pt, q: Pt| {
+            let (p, q) = (apply(&h, p), apply(&h, q));
+            let (o, c) = (disc.c, disc.c);
+            cross3([p.0 - o.0, p.1 - o.1, 1.0], [q.0 - c.0, q.1 - c.1, 1.0])
+        };
+        let (left, right) = (side((0.1, 0.0), (0.1, 1.0)), side((0.9, 0.0), (0.9, 1.0)));
+        let (top, bottom) = (side((0.0, 0.1), (1.0, 0.1)), side((0.0, 0.9), (1.0, 0.9)));
+        for (a, b) in [(left, right), (top, bottom), (right, left)] {
+            let c = centre_between(&disc, &a, &b).expect("centre");
+            assert!(
+                geometry::dist(c, truth) < 0.02,
+                "{c:?} vs {truth:?} (bias was {bias})"
+            );
+        }
+        // Sides of a board off the disc's centre give another point.
+        let off = side((0.2, 0.0), (0.2, 1.0));
+        let c = centre_between(&disc, &off, &right).expect("centre");
+        assert!(geometry::dist(c, truth) > 0.5, "{c:?} vs {truth:?}");
+        // All four sides and any one opposite pair agree.
+        let all = perspective_centre(&disc, &[Some(left), Some(top), Some(right), Some(bottom)]);
+        let pair = perspective_centre(&disc, &[None, Some(top), None, Some(bottom)]);
+        for c in [all, pair] {
+            assert!(geometry::dist(c.expect("centre"), truth) < 0.02);
+        }
+        assert!(perspective_centre(&disc, &[Some(left), Some(top), None, None]).is_none());
     }
 
     /// A white disc (radius 20) on a black board (half side 40, turned 20

@@ -984,8 +984,9 @@ fn fit_lines(
 
 /// Centre offset and width of a bright bar across a profile (dark on both
 /// ends): the midpoint of its rising and falling midpoint crossings, each at
-/// the middle of its own dark side and the bar (a shadow edge crossing the
-/// profile in a dark part shifts neither).
+/// the middle of its own dark side and the bar just inside that edge (a
+/// shadow edge crossing the profile in a dark part, or along the bar, shifts
+/// neither).
 fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Option<f64>)> {
     let k = (p.len() / 7).max(1);
     let (left, right) = (pr::mean(p, 0, k), pr::mean(p, p.len() - k, p.len()));
@@ -1002,9 +1003,34 @@ fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Opt
     let w = bar / 2.0 / pr::STEP_PX;
     let up = pr::crossing(p, (left + bright) / 2.0, true, centre_idx - w)?;
     let down = pr::crossing(p, (right + bright) / 2.0, false, centre_idx + w)?;
-    let width = (down - up) * pr::STEP_PX;
-    if down <= up || !(0.5 * bar..=1.6 * bar).contains(&width) {
+    if down <= up {
         return None;
+    }
+    // The bar's level beside each edge: a quarter of the bar in from it (at
+    // most 2.5 px, past most of a blurred edge). The same inset on both
+    // sides keeps a bar without shadow centred however blurred. With a
+    // shadow edge along the bar, the first crossing on the shadowed side
+    // lies too far in; each pass moves it out toward its own level. Levels
+    // over +-0.5 px, against noise.
+    let level_at = |x: f64| {
+        let i = x.round().max(0.0) as usize;
+        pr::mean(p, i.saturating_sub(2), i + 3)
+    };
+    // The width as the crossings at the bar's brightest level give it: the
+    // bar-width and grid-line checks were set with that.
+    let width = (down - up) * pr::STEP_PX;
+    if !(0.5 * bar..=1.6 * bar).contains(&width) {
+        return None;
+    }
+    let (mut up, mut down) = (up, down);
+    for _ in 0..3 {
+        let inset = (0.25 * (down - up)).min(2.5 / pr::STEP_PX);
+        let next_up = pr::crossing(p, (left + level_at(up + inset)) / 2.0, true, up)?;
+        let next_down = pr::crossing(p, (right + level_at(down - inset)) / 2.0, false, down)?;
+        (up, down) = (next_up, next_down);
+        if down <= up {
+            return None;
+        }
     }
     Some((pr::offset((up + down) / 2.0, half), Some(width)))
 }
@@ -1274,6 +1300,38 @@ mod tests {
         // One quadrant of lighter ground under lit bars: not a shadow.
         let lighter = render(&|x, y| if x >= 72 && y >= 72 { 1.6 } else { 1.0 });
         assert!(!check(&lighter));
+    }
+
+    #[test]
+    fn a_shadow_edge_along_a_bar_does_not_move_its_centre() {
+        // A 10 px bar centred at +0.3 px, blurred (a logistic edge of
+        // scale 0.8 px), sampled like fit_lines' profiles (half 11 px).
+        // Shadowed from `shadow` on: bar and dark side at 0.55.
+        let profile = |shadow: Option<f64>| -> Vec<f64> {
+            let step = |x: f64, at: f64| 1.0 / (1.0 + (-(x - at) / 0.8).exp());
+            let n = (22.0 / pr::STEP_PX) as usize;
+            (0..=n)
+                .map(|i| {
+                    let x = -11.0 + i as f64 * pr::STEP_PX;
+                    let bar = 210.0 * (step(x, -4.7) - step(x, 5.3));
+                    let lit = 20.0 + bar;
+                    match shadow {
+                        Some(at) => lit * (1.0 - 0.45 * step(x, at)),
+                        None => lit,
+                    }
+                })
+                .collect()
+        };
+        // A shadow edge 4 or 2.7 px in from the bar's edges reaches into
+        // their blur: within 0.2 px there (one bar level for both edges:
+        // 0.83 px off, or no bar). Nearer (2.3 px) it moves the centre 0.4 px.
+        for (shadow, within) in [(None, 0.02), (Some(1.3), 0.2), (Some(-2.0), 0.2)] {
+            let (s, width) = bar_centre(&profile(shadow), 11.0, 10.0, 150.0).expect("bar");
+            assert!((s - 0.3).abs() < within, "shadow {shadow:?}: centre {s}");
+            if shadow.is_none() {
+                assert!((width.unwrap() - 10.0).abs() < 0.6, "width {width:?}");
+            }
+        }
     }
 
     #[test]

@@ -943,7 +943,11 @@ fn fit_lines(
                 if pr::line(img, base, n, half, &mut profile).is_some() {
                     let hit = match kind {
                         Kind::Cross => bar_centre(&profile, half, bar, arm.strength),
-                        Kind::Checker => edge_offset(&profile, half, arm.polarity, arm.strength),
+                        Kind::Checker => edge_offset(&profile, half, arm.polarity, arm.strength)
+                            .map(|(s, _)| {
+                                let local = edge_at_local_levels(&profile, half, s, arm.polarity);
+                                (local.unwrap_or(s), None)
+                            }),
                     };
                     if let Some((s, width)) = hit {
                         points.push(add(base, n, s));
@@ -1010,12 +1014,8 @@ fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Opt
     // most 2.5 px, past most of a blurred edge). The same inset on both
     // sides keeps a bar without shadow centred however blurred. With a
     // shadow edge along the bar, the first crossing on the shadowed side
-    // lies too far in; each pass moves it out toward its own level. Levels
-    // over +-0.5 px, against noise.
-    let level_at = |x: f64| {
-        let i = x.round().max(0.0) as usize;
-        pr::mean(p, i.saturating_sub(2), i + 3)
-    };
+    // lies too far in; each pass moves it out toward its own level.
+    let level_at = |x: f64| pr::level_near(p, x);
     // The width as the crossings at the bar's brightest level give it: the
     // bar-width and grid-line checks were set with that.
     let width = (down - up) * pr::STEP_PX;
@@ -1046,6 +1046,21 @@ fn edge_offset(p: &[f64], half: f64, polarity: f64, strength: f64) -> Option<(f6
     let level = (first + last) / 2.0;
     let idx = pr::crossing(p, level, polarity > 0.0, half / pr::STEP_PX)?;
     Some((pr::offset(idx, half), None))
+}
+
+/// A checker boundary's offset `s` (from [`edge_offset`]) moved to the
+/// midpoint of the levels just either side of it: 2.5 px out, at most half
+/// the profile's half length. The profile's ends may lie across a shadow
+/// edge that runs along the boundary, and the middle of their levels then
+/// falls on the shadow edge; the levels beside the boundary do not.
+fn edge_at_local_levels(p: &[f64], half: f64, s: f64, polarity: f64) -> Option<f64> {
+    let inset = 2.5f64.min(0.5 * half) / pr::STEP_PX;
+    let mut x = (s + half) / pr::STEP_PX;
+    for _ in 0..3 {
+        let level = (pr::level_near(p, x - inset) + pr::level_near(p, x + inset)) / 2.0;
+        x = pr::crossing(p, level, polarity > 0.0, x)?;
+    }
+    Some(pr::offset(x, half))
 }
 
 /// A cross's quadrants are dark all over: on a 3x3 grid across each one,
@@ -1330,6 +1345,35 @@ mod tests {
             assert!((s - 0.3).abs() < within, "shadow {shadow:?}: centre {s}");
             if shadow.is_none() {
                 assert!((width.unwrap() - 10.0).abs() < 0.6, "width {width:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_shadow_edge_beside_a_checker_boundary_does_not_move_it() {
+        // A boundary at +0.3 px rising from 20 to 230, blurred as above;
+        // from `shadow` on, in shadow (x 0.55), on a profile of half 11 px.
+        let profile = |shadow: f64| -> Vec<f64> {
+            let step = |x: f64, at: f64| 1.0 / (1.0 + (-(x - at) / 0.8).exp());
+            (0..=(22.0 / pr::STEP_PX) as usize)
+                .map(|i| {
+                    let x = -11.0 + i as f64 * pr::STEP_PX;
+                    (20.0 + 210.0 * step(x, 0.3)) * (1.0 - 0.45 * step(x, shadow))
+                })
+                .collect()
+        };
+        for shadow in [20.0, 5.0, -5.0] {
+            let p = profile(shadow);
+            let (s, _) = edge_offset(&p, 11.0, 1.0, 150.0).expect("edge");
+            let local = edge_at_local_levels(&p, 11.0, s, 1.0).expect("edge");
+            assert!(
+                (local - 0.3).abs() < 0.08,
+                "shadow at {shadow}: {local} (ends: {s})"
+            );
+            if shadow == 5.0 {
+                // The profile's ends alone: the middle of lit dark and
+                // shadowed light, more than 0.3 px off.
+                assert!((s - 0.3).abs() > 0.3, "ends alone: {s}");
             }
         }
     }

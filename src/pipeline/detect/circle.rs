@@ -513,11 +513,8 @@ fn perspective_centre(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> 
 /// fixed point inside the ellipse.
 fn centre_between(e: &Ellipse, l0: &[f64; 3], l2: &[f64; 3]) -> Option<Pt> {
     let conic = e.conic(e.c);
-    let times = |m: &[f64; 9], v: [f64; 3]| -> [f64; 3] {
-        std::array::from_fn(|r| (0..3).map(|i| m[r * 3 + i] * v[i]).sum())
-    };
     let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let diameter = times(&conic, cross3(*l0, *l2));
+    let diameter = mat_vec(&conic, cross3(*l0, *l2));
     let norm = diameter[0].hypot(diameter[1]);
     if norm < 1e-12 {
         return None;
@@ -534,9 +531,9 @@ fn centre_between(e: &Ellipse, l0: &[f64; 3], l2: &[f64; 3]) -> Option<Pt> {
     let (s0, s2) = (crossing(l0)?, crossing(l2)?);
     // The disc's edge points: roots of a2 s^2 + 2 a1 s + a0 = 0.
     let (a2, a1, a0) = (
-        dot(dir, times(&conic, dir)),
-        dot(dir, times(&conic, foot)),
-        dot(foot, times(&conic, foot)),
+        dot(dir, mat_vec(&conic, dir)),
+        dot(dir, mat_vec(&conic, foot)),
+        dot(foot, mat_vec(&conic, foot)),
     );
     if a2.abs() < 1e-12 {
         return None;
@@ -551,7 +548,7 @@ fn centre_between(e: &Ellipse, l0: &[f64; 3], l2: &[f64; 3]) -> Option<Pt> {
     [(-b + disc.sqrt()) / a, (-b - disc.sqrt()) / a]
         .into_iter()
         .map(at)
-        .find(|x| dot(*x, times(&conic, *x)) < 0.0)
+        .find(|x| dot(*x, mat_vec(&conic, *x)) < 0.0)
         .map(|x| (x[0] + e.c.0, x[1] + e.c.1))
 }
 
@@ -1017,6 +1014,11 @@ fn board_side(
     (pr::line_rms(&inliers, line) <= MAX_SIDE_RMS_PX).then_some(line)
 }
 
+/// Row-major 3x3 matrix `m` times column vector `v`.
+fn mat_vec(m: &[f64; 9], v: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|r| (0..3).map(|i| m[r * 3 + i] * v[i]).sum())
+}
+
 fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [
         a[1] * b[2] - a[2] * b[1],
@@ -1029,11 +1031,7 @@ fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 /// ellipse: C^-1 l, back in tile pixels.
 fn pole(e: &Ellipse, l: &[f64; 3]) -> Option<Pt> {
     let c = geometry::invert3(&e.conic(e.c))?;
-    let x = [
-        c[0] * l[0] + c[1] * l[1] + c[2] * l[2],
-        c[3] * l[0] + c[4] * l[1] + c[5] * l[2],
-        c[6] * l[0] + c[7] * l[1] + c[8] * l[2],
-    ];
+    let x = mat_vec(&c, *l);
     (x[2].abs() > 1e-12).then(|| (x[0] / x[2] + e.c.0, x[1] / x[2] + e.c.1))
 }
 
@@ -1059,18 +1057,11 @@ fn concentric_centre(inner: &Ellipse, outer: &Ellipse) -> Option<Pt> {
     ];
     // The null vector of a rank-2 matrix: the largest cross product of two rows.
     let rows = [[a[0], a[1], a[2]], [a[3], a[4], a[5]], [a[6], a[7], a[8]]];
-    let cross = |p: [f64; 3], q: [f64; 3]| {
-        [
-            p[1] * q[2] - p[2] * q[1],
-            p[2] * q[0] - p[0] * q[2],
-            p[0] * q[1] - p[1] * q[0],
-        ]
-    };
     let norm = |v: [f64; 3]| v.iter().map(|x| x * x).sum::<f64>();
     let x = [
-        cross(rows[0], rows[1]),
-        cross(rows[0], rows[2]),
-        cross(rows[1], rows[2]),
+        cross3(rows[0], rows[1]),
+        cross3(rows[0], rows[2]),
+        cross3(rows[1], rows[2]),
     ]
     .into_iter()
     .max_by(|p, q| norm(*p).total_cmp(&norm(*q)))?;

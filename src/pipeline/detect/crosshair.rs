@@ -1015,7 +1015,6 @@ fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Opt
     // sides keeps a bar without shadow centred however blurred. With a
     // shadow edge along the bar, the first crossing on the shadowed side
     // lies too far in; each pass moves it out toward its own level.
-    let level_at = |x: f64| pr::level_near(p, x);
     // The width as the crossings at the bar's brightest level give it: the
     // bar-width and grid-line checks were set with that.
     let width = (down - up) * pr::STEP_PX;
@@ -1025,8 +1024,13 @@ fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Opt
     let (mut up, mut down) = (up, down);
     for _ in 0..3 {
         let inset = (0.25 * (down - up)).min(2.5 / pr::STEP_PX);
-        let next_up = pr::crossing(p, (left + level_at(up + inset)) / 2.0, true, up)?;
-        let next_down = pr::crossing(p, (right + level_at(down - inset)) / 2.0, false, down)?;
+        let next_up = pr::crossing(p, (left + pr::level_near(p, up + inset)) / 2.0, true, up)?;
+        let next_down = pr::crossing(
+            p,
+            (right + pr::level_near(p, down - inset)) / 2.0,
+            false,
+            down,
+        )?;
         (up, down) = (next_up, next_down);
         if down <= up {
             return None;

@@ -1010,17 +1010,17 @@ fn bar_centre(p: &[f64], half: f64, bar: f64, strength: f64) -> Option<(f64, Opt
     if down <= up {
         return None;
     }
-    // The bar's level beside each edge: a quarter of the bar in from it (at
-    // most 2.5 px, past most of a blurred edge). The same inset on both
-    // sides keeps a bar without shadow centred however blurred. With a
-    // shadow edge along the bar, the first crossing on the shadowed side
-    // lies too far in; each pass moves it out toward its own level.
     // The width as the crossings at the bar's brightest level give it: the
     // bar-width and grid-line checks were set with that.
     let width = (down - up) * pr::STEP_PX;
     if !(0.5 * bar..=1.6 * bar).contains(&width) {
         return None;
     }
+    // The bar's level beside each edge: a quarter of the bar in from it (at
+    // most 2.5 px, past most of a blurred edge). The same inset on both
+    // sides keeps a bar without shadow centred however blurred. With a
+    // shadow edge along the bar, the first crossing on the shadowed side
+    // lies too far in; each pass moves it out toward its own level.
     let (mut up, mut down) = (up, down);
     for _ in 0..3 {
         let inset = (0.25 * (down - up)).min(2.5 / pr::STEP_PX);

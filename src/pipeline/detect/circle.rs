@@ -1138,16 +1138,18 @@ mod tests {
         fit(&pts).expect("ellipse")
     }
 
+    /// The unit square's image under a strong perspective, so that ellipse
+    /// centres are visibly biased.
+    const STRONG_PERSPECTIVE: [Pt; 4] = [
+        (100.0, 100.0),
+        (400.0, 130.0),
+        (380.0, 420.0),
+        (90.0, 360.0),
+    ];
+
     #[test]
     fn concentric_rings_recover_the_projected_centre() {
-        // A strong perspective, so the ellipse centres are visibly biased.
-        let quad = [
-            (100.0, 100.0),
-            (400.0, 130.0),
-            (380.0, 420.0),
-            (90.0, 360.0),
-        ];
-        let h = square_to_quad(&quad);
+        let h = square_to_quad(&STRONG_PERSPECTIVE);
         let truth = apply(&h, (0.5, 0.5));
         let (inner, outer) = (projected(&h, 0.1), projected(&h, 0.3));
         let bias = geometry::dist(outer.c, truth);
@@ -1161,13 +1163,7 @@ mod tests {
 
     #[test]
     fn two_opposite_board_sides_recover_the_projected_centre() {
-        let quad = [
-            (100.0, 100.0),
-            (400.0, 130.0),
-            (380.0, 420.0),
-            (90.0, 360.0),
-        ];
-        let h = square_to_quad(&quad);
+        let h = square_to_quad(&STRONG_PERSPECTIVE);
         let truth = apply(&h, (0.5, 0.5));
         let disc = projected(&h, 0.2);
         let bias = geometry::dist(disc.c, truth);
@@ -1176,8 +1172,8 @@ mod tests {
         // the ellipse's centre.
         let side = |p: Pt, q: Pt| {
             let (p, q) = (apply(&h, p), apply(&h, q));
-            let (o, c) = (disc.c, disc.c);
-            cross3([p.0 - o.0, p.1 - o.1, 1.0], [q.0 - c.0, q.1 - c.1, 1.0])
+            let o = disc.c;
+            cross3([p.0 - o.0, p.1 - o.1, 1.0], [q.0 - o.0, q.1 - o.1, 1.0])
         };
         let (left, right) = (side((0.1, 0.0), (0.1, 1.0)), side((0.9, 0.0), (0.9, 1.0)));
         let (top, bottom) = (side((0.0, 0.1), (1.0, 0.1)), side((0.0, 0.9), (1.0, 0.9)));

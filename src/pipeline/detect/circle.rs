@@ -63,6 +63,9 @@ const LEVEL_TILT_DEG: f64 = 3.0;
 /// Least drop in the share of columns at the board's level where a side
 /// found by levels ends.
 const MIN_LEVEL_DROP: f64 = 0.4;
+/// Newton steps for the centre from two adjacent board sides; it moves less
+/// than 1e-6 px after a handful.
+const ADJACENT_ITERATIONS: usize = 20;
 /// Largest RMS distance of a board side's subpixel edge points from their
 /// line (a clean side: 0.3-0.6 px).
 const MAX_SIDE_RMS_PX: f64 = 0.8;
@@ -493,13 +496,71 @@ fn board_sides(
 /// relative to the ellipse's centre, as [`board_sides`] gives them). With
 /// all four, the pole of the board plane's vanishing line (through the
 /// vanishing points of opposite sides) with respect to the disc's conic;
-/// with one pair of opposite sides, [`centre_between`]. Both are exact under
-/// perspective.
+/// with one pair of opposite sides, [`centre_between`]; with two adjacent
+/// ones, [`centre_beside`]. All are exact under perspective.
 fn perspective_centre(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> {
     match sides {
         [Some(a), Some(b), Some(c), Some(d)] => pole(e, &cross3(cross3(*a, *c), cross3(*b, *d))),
         [Some(a), _, Some(c), _] | [_, Some(a), _, Some(c)] => centre_between(e, a, c),
+        [Some(a), Some(b), None, None]
+        | [None, Some(a), Some(b), None]
+        | [None, None, Some(a), Some(b)]
+        | [Some(b), None, None, Some(a)] => centre_beside(e, a, b),
         _ => None,
+    }
+}
+
+fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// An image line (homogeneous) as foot + s * dir, to find where other lines
+/// and a conic cross it.
+struct ImageLine {
+    foot: [f64; 3],
+    dir: [f64; 3],
+}
+
+impl ImageLine {
+    fn new(l: [f64; 3]) -> Option<ImageLine> {
+        let norm = l[0].hypot(l[1]);
+        if norm < 1e-12 {
+            return None;
+        }
+        let k = -l[2] / (norm * norm);
+        Some(ImageLine {
+            foot: [l[0] * k, l[1] * k, 1.0],
+            dir: [-l[1] / norm, l[0] / norm, 0.0],
+        })
+    }
+
+    fn at(&self, s: f64) -> [f64; 3] {
+        [
+            self.foot[0] + s * self.dir[0],
+            self.foot[1] + s * self.dir[1],
+            1.0,
+        ]
+    }
+
+    /// Where line `l` crosses this one; None when parallel (or nearly).
+    fn crossing(&self, l: &[f64; 3]) -> Option<f64> {
+        let along = dot3(*l, self.dir);
+        (along.abs() > 1e-12).then(|| -dot3(*l, self.foot) / along)
+    }
+
+    /// Where a point (homogeneous, finite) lies along this line.
+    fn position(&self, p: [f64; 3]) -> f64 {
+        (p[0] / p[2] - self.foot[0]) * self.dir[0] + (p[1] / p[2] - self.foot[1]) * self.dir[1]
+    }
+
+    /// The conic's crossings: roots of a2 s^2 + 2 a1 s + a0 = 0, as
+    /// (a2, a1, a0).
+    fn conic_terms(&self, conic: &[f64; 9]) -> (f64, f64, f64) {
+        (
+            dot3(self.dir, mat_vec(conic, self.dir)),
+            dot3(self.dir, mat_vec(conic, self.foot)),
+            dot3(self.foot, mat_vec(conic, self.foot)),
+        )
     }
 }
 
@@ -513,28 +574,9 @@ fn perspective_centre(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> 
 /// fixed point inside the ellipse.
 fn centre_between(e: &Ellipse, l0: &[f64; 3], l2: &[f64; 3]) -> Option<Pt> {
     let conic = e.conic(e.c);
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let diameter = mat_vec(&conic, cross3(*l0, *l2));
-    let norm = diameter[0].hypot(diameter[1]);
-    if norm < 1e-12 {
-        return None;
-    }
-    // The diameter as foot + s * dir.
-    let dir = [-diameter[1] / norm, diameter[0] / norm, 0.0];
-    let k = -diameter[2] / (norm * norm);
-    let foot = [diameter[0] * k, diameter[1] * k, 1.0];
-    let at = |s: f64| [foot[0] + s * dir[0], foot[1] + s * dir[1], 1.0];
-    let crossing = |l: &[f64; 3]| {
-        let along = dot(*l, dir);
-        (along.abs() > 1e-12).then(|| -dot(*l, foot) / along)
-    };
-    let (s0, s2) = (crossing(l0)?, crossing(l2)?);
-    // The disc's edge points: roots of a2 s^2 + 2 a1 s + a0 = 0.
-    let (a2, a1, a0) = (
-        dot(dir, mat_vec(&conic, dir)),
-        dot(dir, mat_vec(&conic, foot)),
-        dot(foot, mat_vec(&conic, foot)),
-    );
+    let diameter = ImageLine::new(mat_vec(&conic, cross3(*l0, *l2)))?;
+    let (s0, s2) = (diameter.crossing(l0)?, diameter.crossing(l2)?);
+    let (a2, a1, a0) = diameter.conic_terms(&conic);
     if a2.abs() < 1e-12 {
         return None;
     }
@@ -547,9 +589,75 @@ fn centre_between(e: &Ellipse, l0: &[f64; 3], l2: &[f64; 3]) -> Option<Pt> {
     }
     [(-b + disc.sqrt()) / a, (-b - disc.sqrt()) / a]
         .into_iter()
-        .map(at)
-        .find(|x| dot(*x, mat_vec(&conic, *x)) < 0.0)
+        .map(|s| diameter.at(s))
+        .find(|x| dot3(*x, mat_vec(&conic, *x)) < 0.0)
         .map(|x| (x[0] + e.c.0, x[1] + e.c.1))
+}
+
+/// The image of a disc's centre from two adjacent sides `l0`, `l1` of its
+/// square board (homogeneous, relative to the ellipse's centre). A guess of
+/// the centre fixes the vanishing line (its polar) and so each side's
+/// vanishing point. On the board the sides are perpendicular (their
+/// vanishing points conjugate with respect to the disc) and equally far
+/// from the centre (the same ratio to the disc's radius, a cross ratio
+/// along the diameter perpendicular to each). Newton's method on those two
+/// conditions from the ellipse's centre.
+fn centre_beside(e: &Ellipse, l0: &[f64; 3], l1: &[f64; 3]) -> Option<Pt> {
+    let conic = e.conic(e.c);
+    let q = |a: [f64; 3], b: [f64; 3]| dot3(a, mat_vec(&conic, b));
+    // Side over radius for side `l` with vanishing point `v` about centre `p`
+    // (vanishing line `horizon`): along the diameter perpendicular to the
+    // side (the polar of v, through p), the cross ratio of the centre, the
+    // diameter's vanishing point, the disc's edge and the side's crossing.
+    let side_ratio = |l: &[f64; 3], v: [f64; 3], p: [f64; 3], horizon: &[f64; 3]| {
+        let diameter = ImageLine::new(mat_vec(&conic, v))?;
+        let (a2, a1, a0) = diameter.conic_terms(&conic);
+        let root = a1 * a1 - a2 * a0;
+        if root < 0.0 || a2.abs() < 1e-12 {
+            return None;
+        }
+        let edge = (-a1 + root.sqrt()) / a2;
+        let (centre, side) = (diameter.position(p), diameter.crossing(l)?);
+        // The vanishing point's side of the cross ratio, 1 when at infinity.
+        let far = diameter
+            .crossing(horizon)
+            .map_or(1.0, |inf| (edge - inf) / (side - inf));
+        Some(((side - centre) / (edge - centre) * far).abs())
+    };
+    let residual = |c: [f64; 2]| -> Option<[f64; 2]> {
+        let p = [c[0], c[1], 1.0];
+        let horizon = mat_vec(&conic, p);
+        let (v0, v1) = (cross3(*l0, horizon), cross3(*l1, horizon));
+        let norm = (q(v0, v0) * q(v1, v1)).abs().sqrt();
+        if norm < 1e-300 {
+            return None;
+        }
+        let h0 = side_ratio(l0, v0, p, &horizon)?;
+        let h1 = side_ratio(l1, v1, p, &horizon)?;
+        Some([h0 - h1, q(v0, v1) / norm])
+    };
+    let mut c = [0.0, 0.0];
+    for _ in 0..ADJACENT_ITERATIONS {
+        let f = residual(c)?;
+        let step = 1e-4 * e.radius();
+        let fx = residual([c[0] + step, c[1]])?;
+        let fy = residual([c[0], c[1] + step])?;
+        let j = [
+            [(fx[0] - f[0]) / step, (fy[0] - f[0]) / step],
+            [(fx[1] - f[1]) / step, (fy[1] - f[1]) / step],
+        ];
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        if det.abs() < 1e-300 {
+            return None;
+        }
+        let dx = (f[0] * j[1][1] - f[1] * j[0][1]) / det;
+        let dy = (f[1] * j[0][0] - f[0] * j[1][0]) / det;
+        c = [c[0] - dx, c[1] - dy];
+        if dx.hypot(dy) < 1e-6 {
+            return Some((c[0] + e.c.0, c[1] + e.c.1));
+        }
+    }
+    None
 }
 
 /// A square board centred on its disc, fitted to the end points of rays.
@@ -1194,7 +1302,47 @@ mod tests {
         for c in [all, pair] {
             assert!(geometry::dist(c.expect("centre"), truth) < 0.02);
         }
-        assert!(perspective_centre(&disc, &[Some(left), Some(top), None, None]).is_none());
+    }
+
+    #[test]
+    fn two_adjacent_board_sides_recover_the_projected_centre() {
+        let h = square_to_quad(&STRONG_PERSPECTIVE);
+        let truth = apply(&h, (0.5, 0.5));
+        let disc = projected(&h, 0.2);
+        let bias = geometry::dist(disc.c, truth);
+        assert!(bias > 0.5, "ellipse centre bias only {bias}");
+        let side = |p: Pt, q: Pt| {
+            let (p, q) = (apply(&h, p), apply(&h, q));
+            let o = disc.c;
+            Some(cross3(
+                [p.0 - o.0, p.1 - o.1, 1.0],
+                [q.0 - o.0, q.1 - o.1, 1.0],
+            ))
+        };
+        // Sides in order around the board: left, top, right, bottom.
+        let sides = [
+            side((0.1, 0.0), (0.1, 1.0)),
+            side((0.0, 0.1), (1.0, 0.1)),
+            side((0.9, 0.0), (0.9, 1.0)),
+            side((0.0, 0.9), (1.0, 0.9)),
+        ];
+        for k in 0..4 {
+            let mut seen = [None; 4];
+            seen[k] = sides[k];
+            seen[(k + 1) % 4] = sides[(k + 1) % 4];
+            let c = perspective_centre(&disc, &seen).expect("centre");
+            assert!(
+                geometry::dist(c, truth) < 0.02,
+                "sides {k}, {}: {c:?} vs {truth:?} (bias was {bias})",
+                (k + 1) % 4
+            );
+        }
+        // A board off the disc's centre (its sides at 0.2 and 0.1 from the
+        // disc's edge) gives no centre near the disc's; one side alone none.
+        let off = [side((0.2, 0.0), (0.2, 1.0)), sides[1], None, None];
+        let c = perspective_centre(&disc, &off);
+        assert!(c.is_none_or(|c| geometry::dist(c, truth) > 0.5), "{c:?}");
+        assert!(perspective_centre(&disc, &[sides[0], None, None, None]).is_none());
     }
 
     /// A white disc (radius 20) on a black board (half side 40, turned 20

@@ -63,6 +63,10 @@ const LEVEL_TILT_DEG: f64 = 3.0;
 /// Least drop in the share of columns at the board's level where a side
 /// found by levels ends.
 const MIN_LEVEL_DROP: f64 = 0.4;
+/// A board found by levels on three sides: how far (as a fraction) the two
+/// opposite sides' distances from the disc, and the third's from theirs,
+/// may differ.
+const THREE_SIDE_TOLERANCE: f64 = 0.05;
 /// Newton steps for the centre from two adjacent board sides; it moves less
 /// than 1e-6 px after a handful.
 const ADJACENT_ITERATIONS: usize = 20;
@@ -997,24 +1001,44 @@ impl Levels<'_> {
 
 /// A disc's board found by levels (for boards on ground of nearly their
 /// grey, where rays run past the board's end here and there), the square's
-/// orientation `psi` taken from the rays' ends. All four sides must show
-/// their drop, the board's diagonals must cross at the disc, and at least
-/// three corners must reach past the sides.
+/// orientation `psi` taken from the rays' ends. With all four sides showing
+/// their drop, the board's diagonals must cross at the disc and at least
+/// three corners must reach past the sides. With one side hidden (ground of
+/// the board's grey there), the two sides across it must lie equally far
+/// from the disc and the third as far as they do, within
+/// [`THREE_SIDE_TOLERANCE`], and both corners of the third must reach past.
 fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> {
-    let sides: [LevelSide; 4] = (0..4)
-        .map(|k| levels.side(psi + k as f64 * std::f64::consts::FRAC_PI_2))
-        .collect::<Option<Vec<_>>>()?
-        .try_into()
-        .ok()?;
-    let half = sides.iter().map(|s| s.distance).sum::<f64>() / 4.0;
-    let corners = (0..4)
-        .filter(|&k| levels.corner(&sides[k], &sides[(k + 1) % 4]))
-        .count();
-    let lines = sides.map(|s| Some(s.points));
-    (corners >= 3 && centred_on_disc(&lines, half)).then_some(BoardSquare {
+    let found: [Option<LevelSide>; 4] =
+        std::array::from_fn(|k| levels.side(psi + k as f64 * std::f64::consts::FRAC_PI_2));
+    let hidden: Vec<usize> = (0..4).filter(|&k| found[k].is_none()).collect();
+    let (half, accepted) = match hidden[..] {
+        [] => {
+            let sides = found.each_ref().map(|s| s.as_ref().expect("all found"));
+            let half = sides.iter().map(|s| s.distance).sum::<f64>() / 4.0;
+            let corners = (0..4)
+                .filter(|&k| levels.corner(sides[k], sides[(k + 1) % 4]))
+                .count();
+            let lines = sides.map(|s| Some(s.points.clone()));
+            (half, corners >= 3 && centred_on_disc(&lines, half))
+        }
+        [m] => {
+            let side = |i: usize| found[(m + i) % 4].as_ref().expect("not hidden");
+            let (a, third, b) = (side(1), side(2), side(3));
+            let pair = (a.distance + b.distance) / 2.0;
+            let close = |x: f64, y: f64| x.max(y) / x.min(y) <= 1.0 + THREE_SIDE_TOLERANCE;
+            let half = (a.distance + third.distance + b.distance) / 3.0;
+            let ok = close(a.distance, b.distance)
+                && close(third.distance, pair)
+                && levels.corner(a, third)
+                && levels.corner(third, b);
+            (half, ok)
+        }
+        _ => return None,
+    };
+    accepted.then(|| BoardSquare {
         half,
         psi,
-        sides: lines,
+        sides: found.map(|s| s.map(|s| s.points)),
     })
 }
 

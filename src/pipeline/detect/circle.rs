@@ -1370,13 +1370,18 @@ mod tests {
     }
 
     /// A white disc (radius 20) on a black board (half side 40, turned 20
-    /// degrees) centred `tank` px off the disc, on ground that has the
-    /// board's grey on every other diagonal band: 4x4-supersampled 8-bit.
-    fn board_on_ground_of_its_grey(tank: f64) -> (Vec<u8>, usize, Pt) {
+    /// degrees) centred `tank` px off the disc (along the board's axes), on
+    /// ground that has the board's grey on every other diagonal band, and
+    /// all of it past the board's +u side when `hidden`: 4x4-supersampled
+    /// 8-bit.
+    fn board_on_ground_of_its_grey(tank: Pt, hidden: bool) -> (Vec<u8>, usize, Pt) {
         let side = 240;
         let disc = (120.3, 119.6);
-        let board = (disc.0 + tank, disc.1);
         let (sin, cos) = 0.35f64.sin_cos();
+        let board = (
+            disc.0 + tank.0 * cos - tank.1 * sin,
+            disc.1 + tank.0 * sin + tank.1 * cos,
+        );
         let mut data = vec![0u8; side * side];
         for y in 0..side {
             for x in 0..side {
@@ -1388,7 +1393,7 @@ mod tests {
                     let (u, v) = (dx * cos + dy * sin, -dx * sin + dy * cos);
                     sum += if (px - disc.0).hypot(py - disc.1) < 20.0 {
                         200.0
-                    } else if u.abs() < 40.0 && v.abs() < 40.0 {
+                    } else if (u.abs() < 40.0 && v.abs() < 40.0) || (hidden && u >= 40.0) {
                         70.0
                     } else if ((px + py) / 9.0).floor().rem_euclid(2.0) == 0.0 {
                         72.0
@@ -1405,8 +1410,8 @@ mod tests {
     #[test]
     fn a_board_on_ground_of_its_grey_is_found_by_its_level() {
         // The board by levels around the disc of board_on_ground_of_its_grey.
-        let find = |tank: f64| {
-            let (data, side, disc) = board_on_ground_of_its_grey(tank);
+        let find = |tank: Pt, hidden: bool| {
+            let (data, side, disc) = board_on_ground_of_its_grey(tank, hidden);
             let img = GreyView {
                 data: &data,
                 width: side,
@@ -1421,7 +1426,7 @@ mod tests {
             };
             board_by_levels(&Levels::new(&img, &e, 130.0, 1.0), 0.35)
         };
-        let square = find(0.0).expect("board found by levels");
+        let square = find((0.0, 0.0), false).expect("board found by levels");
         assert!(
             (square.half - 40.0).abs() < 1.0,
             "half side {}",
@@ -1432,6 +1437,19 @@ mod tests {
         let centre = board_centre(&square.sides).expect("centre");
         assert!(centre.0.hypot(centre.1) < 1.0, "board centre {centre:?}");
         // The same board 8 px off the disc (a tank off a roof's centre).
-        assert!(find(8.0).is_none());
+        assert!(find((8.0, 0.0), false).is_none());
+        // Ground of the board's grey all along one side: three sides.
+        let square = find((0.0, 0.0), true).expect("board found on three sides");
+        assert_eq!(square.sides.iter().filter(|s| s.is_none()).count(), 1);
+        assert!(
+            (square.half - 40.0).abs() < 1.0,
+            "half side {}",
+            square.half
+        );
+        // Off the disc towards the hidden side or along it: the third side
+        // or the pair across the hidden one is farther.
+        for tank in [(-4.0, 0.0), (0.0, 4.0)] {
+            assert!(find(tank, true).is_none(), "tank {tank:?}");
+        }
     }
 }

@@ -884,8 +884,8 @@ impl Levels<'_> {
         let bins = ((BOARD_TO_DISC.1 + 0.3 - 1.3) * r) as usize + 1;
         // Drop window: a fraction of the disc's radius, several pixels.
         let w = (0.3 * r).max(6.0) as usize;
-        // The drop, where it is, the normal and tangent, the columns.
-        let mut best: Option<(f64, f64, Pt, Pt, Vec<Column>)> = None;
+        // The drop, its bin, the normal and tangent, the columns.
+        let mut best: Option<(f64, usize, Pt, Pt, Vec<Column>)> = None;
         for tilt in [0.0, -1.0, 1.0, -2.0, 2.0].map(|f| f * LEVEL_TILT_DEG) {
             let a = theta + f64::to_radians(tilt);
             let (n, t) = ((a.cos(), a.sin()), (-a.sin(), a.cos()));
@@ -896,29 +896,31 @@ impl Levels<'_> {
             let frac: Vec<f64> = (0..bins)
                 .map(|b| columns.iter().filter(|c| c.on[b]).count() as f64 / columns.len() as f64)
                 .collect();
-            let mut here: Option<(f64, f64)> = None;
+            let mut here: Option<(f64, usize)> = None;
             for b in w..bins.saturating_sub(w) {
                 let inside = frac[b - w..b].iter().sum::<f64>() / w as f64;
                 let outside = frac[b..b + w].iter().sum::<f64>() / w as f64;
                 let drop = inside - outside;
                 if inside >= 0.8 && here.is_none_or(|x| drop > x.0) {
-                    here = Some((drop, h_lo + b as f64));
+                    here = Some((drop, b));
                 }
             }
-            if let Some((drop, h)) = here {
+            if let Some((drop, b)) = here {
                 if best.as_ref().is_none_or(|x| drop > x.0) {
-                    best = Some((drop, h, n, t, columns));
+                    best = Some((drop, b, n, t, columns));
                 }
             }
         }
-        let (drop, h, n, t, columns) = best?;
+        let (drop, bin, n, t, columns) = best?;
         if drop < MIN_LEVEL_DROP {
             return None;
         }
+        // The bin, not h - h_lo, which rounding may put just below it.
+        let h = h_lo + bin as f64;
         // Each column's end: the first of two samples off the board's level
         // from a window before the drop, then where the column crosses
         // halfway between the board's level and the ground's just past it.
-        let start = (h - h_lo) as usize - w;
+        let start = bin - w;
         let points: Vec<Pt> = columns
             .iter()
             .filter_map(|c| {

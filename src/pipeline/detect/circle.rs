@@ -1013,35 +1013,32 @@ fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> {
     let found: [Option<LevelSide>; 4] =
         std::array::from_fn(|k| levels.side(psi + k as f64 * std::f64::consts::FRAC_PI_2));
     let hidden: Vec<usize> = (0..4).filter(|&k| found[k].is_none()).collect();
-    let (half, accepted) = match hidden[..] {
-        [] => {
-            let sides = found.each_ref().map(|s| s.as_ref().expect("all found"));
-            let half = sides.iter().map(|s| s.distance).sum::<f64>() / 4.0;
-            let corners = (0..4)
-                .filter(|&k| levels.corner(sides[k], sides[(k + 1) % 4]))
-                .count();
-            let lines = sides.map(|s| Some(s.points.clone()));
-            (half, corners >= 3 && centred_on_disc(&lines, half))
-        }
+    let distance = |k: usize| found[k % 4].as_ref().map(|s| s.distance);
+    // Whether the corner between sides k and k + 1 reaches past them.
+    let corner = |k: usize| match (&found[k % 4], &found[(k + 1) % 4]) {
+        (Some(a), Some(b)) => levels.corner(a, b),
+        _ => false,
+    };
+    let (half, shaped) = match hidden[..] {
+        [] => (
+            (0..4).filter_map(distance).sum::<f64>() / 4.0,
+            (0..4).filter(|&k| corner(k)).count() >= 3,
+        ),
         [m] => {
-            let side = |i: usize| found[(m + i) % 4].as_ref().expect("not hidden");
-            let (a, third, b) = (side(1), side(2), side(3));
-            let pair = (a.distance + b.distance) / 2.0;
+            let [a, third, b] = [1, 2, 3].map(|i| distance(m + i).expect("not hidden"));
             let close = |x: f64, y: f64| x.max(y) / x.min(y) <= 1.0 + THREE_SIDE_TOLERANCE;
-            let half = (a.distance + third.distance + b.distance) / 3.0;
-            let ok = close(a.distance, b.distance)
-                && close(third.distance, pair)
-                && levels.corner(a, third)
-                && levels.corner(third, b);
-            (half, ok)
+            (
+                (a + third + b) / 3.0,
+                close(a, b) && close(third, (a + b) / 2.0) && corner(m + 1) && corner(m + 2),
+            )
         }
         _ => return None,
     };
-    accepted.then(|| BoardSquare {
-        half,
-        psi,
-        sides: found.map(|s| s.map(|s| s.points)),
-    })
+    let sides = found.map(|s| s.map(|s| s.points));
+    // Four sides: where the board's diagonals cross (three: the equal
+    // distances above).
+    let centred = !hidden.is_empty() || centred_on_disc(&sides, half);
+    (shaped && centred).then_some(BoardSquare { half, psi, sides })
 }
 
 /// A board accepted without all four sides' edge points: the missing sides
@@ -1295,31 +1292,44 @@ mod tests {
         );
     }
 
-    #[test]
-    fn two_opposite_board_sides_recover_the_projected_centre() {
+    /// A disc of radius 0.2 on the unit square under [`STRONG_PERSPECTIVE`]:
+    /// its homography, ellipse and projected centre, the ellipse's centre
+    /// visibly off it.
+    fn disc_in_strong_perspective() -> ([f64; 9], Ellipse, Pt) {
         let h = square_to_quad(&STRONG_PERSPECTIVE);
         let truth = apply(&h, (0.5, 0.5));
         let disc = projected(&h, 0.2);
         let bias = geometry::dist(disc.c, truth);
         assert!(bias > 0.5, "ellipse centre bias only {bias}");
-        // A board side through two points of the unit square, relative to
-        // the ellipse's centre.
-        let side = |p: Pt, q: Pt| {
-            let (p, q) = (apply(&h, p), apply(&h, q));
-            let o = disc.c;
-            cross3([p.0 - o.0, p.1 - o.1, 1.0], [q.0 - o.0, q.1 - o.1, 1.0])
-        };
-        let (left, right) = (side((0.1, 0.0), (0.1, 1.0)), side((0.9, 0.0), (0.9, 1.0)));
-        let (top, bottom) = (side((0.0, 0.1), (1.0, 0.1)), side((0.0, 0.9), (1.0, 0.9)));
+        (h, disc, truth)
+    }
+
+    /// A board side through points `p`, `q` of the unit square under `h`,
+    /// as a homogeneous line relative to the ellipse's centre.
+    fn side_line(h: &[f64; 9], disc: &Ellipse, p: Pt, q: Pt) -> [f64; 3] {
+        let (p, q, o) = (apply(h, p), apply(h, q), disc.c);
+        cross3([p.0 - o.0, p.1 - o.1, 1.0], [q.0 - o.0, q.1 - o.1, 1.0])
+    }
+
+    /// The sides of a board of half side 0.4 around the disc, in order
+    /// around it: left, top, right, bottom.
+    const BOARD_SIDES: [(Pt, Pt); 4] = [
+        ((0.1, 0.0), (0.1, 1.0)),
+        ((0.0, 0.1), (1.0, 0.1)),
+        ((0.9, 0.0), (0.9, 1.0)),
+        ((0.0, 0.9), (1.0, 0.9)),
+    ];
+
+    #[test]
+    fn two_opposite_board_sides_recover_the_projected_centre() {
+        let (h, disc, truth) = disc_in_strong_perspective();
+        let [left, top, right, bottom] = BOARD_SIDES.map(|(p, q)| side_line(&h, &disc, p, q));
         for (a, b) in [(left, right), (top, bottom), (right, left)] {
             let c = centre_between(&disc, &a, &b).expect("centre");
-            assert!(
-                geometry::dist(c, truth) < 0.02,
-                "{c:?} vs {truth:?} (bias was {bias})"
-            );
+            assert!(geometry::dist(c, truth) < 0.02, "{c:?} vs {truth:?}");
         }
         // Sides of a board off the disc's centre give another point.
-        let off = side((0.2, 0.0), (0.2, 1.0));
+        let off = side_line(&h, &disc, (0.2, 0.0), (0.2, 1.0));
         let c = centre_between(&disc, &off, &right).expect("centre");
         assert!(geometry::dist(c, truth) > 0.5, "{c:?} vs {truth:?}");
         // All four sides and any one opposite pair agree.
@@ -1332,26 +1342,8 @@ mod tests {
 
     #[test]
     fn two_adjacent_board_sides_recover_the_projected_centre() {
-        let h = square_to_quad(&STRONG_PERSPECTIVE);
-        let truth = apply(&h, (0.5, 0.5));
-        let disc = projected(&h, 0.2);
-        let bias = geometry::dist(disc.c, truth);
-        assert!(bias > 0.5, "ellipse centre bias only {bias}");
-        let side = |p: Pt, q: Pt| {
-            let (p, q) = (apply(&h, p), apply(&h, q));
-            let o = disc.c;
-            Some(cross3(
-                [p.0 - o.0, p.1 - o.1, 1.0],
-                [q.0 - o.0, q.1 - o.1, 1.0],
-            ))
-        };
-        // Sides in order around the board: left, top, right, bottom.
-        let sides = [
-            side((0.1, 0.0), (0.1, 1.0)),
-            side((0.0, 0.1), (1.0, 0.1)),
-            side((0.9, 0.0), (0.9, 1.0)),
-            side((0.0, 0.9), (1.0, 0.9)),
-        ];
+        let (h, disc, truth) = disc_in_strong_perspective();
+        let sides = BOARD_SIDES.map(|(p, q)| Some(side_line(&h, &disc, p, q)));
         for k in 0..4 {
             let mut seen = [None; 4];
             seen[k] = sides[k];
@@ -1359,14 +1351,14 @@ mod tests {
             let c = perspective_centre(&disc, &seen).expect("centre");
             assert!(
                 geometry::dist(c, truth) < 0.02,
-                "sides {k}, {}: {c:?} vs {truth:?} (bias was {bias})",
+                "sides {k}, {}: {c:?} vs {truth:?}",
                 (k + 1) % 4
             );
         }
         // A board off the disc's centre (its sides at 0.2 and 0.1 from the
         // disc's edge) gives no centre near the disc's; one side alone none.
-        let off = [side((0.2, 0.0), (0.2, 1.0)), sides[1], None, None];
-        let c = perspective_centre(&disc, &off);
+        let off = Some(side_line(&h, &disc, (0.2, 0.0), (0.2, 1.0)));
+        let c = perspective_centre(&disc, &[off, sides[1], None, None]);
         assert!(c.is_none_or(|c| geometry::dist(c, truth) > 0.5), "{c:?}");
         assert!(perspective_centre(&disc, &[sides[0], None, None, None]).is_none());
     }

@@ -1321,25 +1321,30 @@ mod tests {
         assert!(!check(&lighter));
     }
 
+    /// A blurred step from 0 to 1 at `at` (a logistic edge of scale 0.8 px).
+    fn blurred_step(x: f64, at: f64) -> f64 {
+        1.0 / (1.0 + (-(x - at) / 0.8).exp())
+    }
+
+    /// `grey` sampled like fit_lines' profiles of half 11 px.
+    fn profile_of(grey: impl Fn(f64) -> f64) -> Vec<f64> {
+        (0..=(22.0 / pr::STEP_PX) as usize)
+            .map(|i| grey(-11.0 + i as f64 * pr::STEP_PX))
+            .collect()
+    }
+
     #[test]
     fn a_shadow_edge_along_a_bar_does_not_move_its_centre() {
-        // A 10 px bar centred at +0.3 px, blurred (a logistic edge of
-        // scale 0.8 px), sampled like fit_lines' profiles (half 11 px).
-        // Shadowed from `shadow` on: bar and dark side at 0.55.
-        let profile = |shadow: Option<f64>| -> Vec<f64> {
-            let step = |x: f64, at: f64| 1.0 / (1.0 + (-(x - at) / 0.8).exp());
-            let n = (22.0 / pr::STEP_PX) as usize;
-            (0..=n)
-                .map(|i| {
-                    let x = -11.0 + i as f64 * pr::STEP_PX;
-                    let bar = 210.0 * (step(x, -4.7) - step(x, 5.3));
-                    let lit = 20.0 + bar;
-                    match shadow {
-                        Some(at) => lit * (1.0 - 0.45 * step(x, at)),
-                        None => lit,
-                    }
-                })
-                .collect()
+        // A 10 px bar centred at +0.3 px, blurred; shadowed from `shadow` on:
+        // bar and dark side at 0.55.
+        let profile = |shadow: Option<f64>| {
+            profile_of(|x| {
+                let lit = 20.0 + 210.0 * (blurred_step(x, -4.7) - blurred_step(x, 5.3));
+                match shadow {
+                    Some(at) => lit * (1.0 - 0.45 * blurred_step(x, at)),
+                    None => lit,
+                }
+            })
         };
         // A shadow edge 4 or 2.7 px in from the bar's edges reaches into
         // their blur: within 0.2 px there (one bar level for both edges:
@@ -1355,16 +1360,12 @@ mod tests {
 
     #[test]
     fn a_shadow_edge_beside_a_checker_boundary_does_not_move_it() {
-        // A boundary at +0.3 px rising from 20 to 230, blurred as above;
-        // from `shadow` on, in shadow (x 0.55), on a profile of half 11 px.
-        let profile = |shadow: f64| -> Vec<f64> {
-            let step = |x: f64, at: f64| 1.0 / (1.0 + (-(x - at) / 0.8).exp());
-            (0..=(22.0 / pr::STEP_PX) as usize)
-                .map(|i| {
-                    let x = -11.0 + i as f64 * pr::STEP_PX;
-                    (20.0 + 210.0 * step(x, 0.3)) * (1.0 - 0.45 * step(x, shadow))
-                })
-                .collect()
+        // A boundary at +0.3 px rising from 20 to 230, blurred; from
+        // `shadow` on, in shadow (x 0.55).
+        let profile = |shadow: f64| {
+            profile_of(|x| {
+                (20.0 + 210.0 * blurred_step(x, 0.3)) * (1.0 - 0.45 * blurred_step(x, shadow))
+            })
         };
         for shadow in [20.0, 5.0, -5.0] {
             let p = profile(shadow);

@@ -55,6 +55,10 @@ const MAX_ARM_RATIO: f64 = 1.3;
 /// Bar length over width (each arm is half the square minus nothing): the
 /// designs in use have bars of 1/12 to 1/3 of the side, so 1.5..6.
 const ARM_TO_BAR: (f64, f64) = (1.2, 7.0);
+/// The two bars' median widths may differ this much: 1.19 at most on the
+/// targets of 8 frames (seeds 500-503, 800-803: perspective, blur); 1.4 for
+/// road markings of two widths crossing (clutter seed 754).
+const MAX_BAR_WIDTH_RATIO: f64 = 1.3;
 /// Past a checker arm's end, a flipped boundary is paving when its log
 /// contrast ratio is the quadrants' within this fraction.
 const FLIP_RATIO: f64 = 0.5;
@@ -357,6 +361,12 @@ impl CrosshairDetector {
                 if w90 - w10 > 0.5 * bar {
                     return Err("bar width varies");
                 }
+                // A printed cross's bars are equally wide; road markings
+                // crossing each other seldom are.
+                let [wa, wb] = fit.bar_widths;
+                if wa.min(wb) > 0.0 && wa.max(wb) / wa.min(wb) > MAX_BAR_WIDTH_RATIO {
+                    return Err("bar widths differ");
+                }
                 // The bars' crossing is bright (a dark tile amid paving is not).
                 let middle = img.sample(centre.0, centre.1).ok_or("centre")?;
                 let dark = quadrants.iter().sum::<f64>() / 4.0;
@@ -366,7 +376,9 @@ impl CrosshairDetector {
                 if !quadrants_are_dark(img, centre, &dirs, &lengths, bar, strength) {
                     return Err("quadrants");
                 }
-                if grid_lines_around(img, centre, &dirs, &lengths, bar, strength) >= 3 {
+                let (at_end, near_end) =
+                    grid_lines_around(img, centre, &dirs, &lengths, bar, strength);
+                if at_end >= 3 || at_end + near_end >= 4 {
                     return Err("grid lines around");
                 }
                 let ratio = size / 2.0 / bar;
@@ -901,6 +913,8 @@ struct LineFit {
     bar: Option<f64>,
     /// Every bar width measured (cross only).
     widths: Vec<f64>,
+    /// Median width of each bar (cross only; 0 without widths).
+    bar_widths: [f64; 2],
     /// Smallest fraction of usable profiles over the four arms.
     coverage: f64,
     /// Largest RMS point-to-line distance of the two lines.
@@ -918,11 +932,13 @@ fn fit_lines(
 ) -> Option<LineFit> {
     let mut lines = [((0.0, 0.0), (0.0, 0.0)); 2];
     let mut widths = Vec::new();
+    let mut bar_widths = [0.0; 2];
     let mut coverage = 1f64;
     let mut rms = 0f64;
     let mut profile = Vec::new();
     for (li, line) in lines.iter_mut().enumerate() {
         let mut points = Vec::new();
+        let first_width = widths.len();
         for k in [li, li + 2] {
             let a = arm_dir(&dirs, k);
             let n = perp(a);
@@ -967,6 +983,9 @@ fn fit_lines(
         if points.len() < 6 {
             return None;
         }
+        if widths.len() > first_width {
+            bar_widths[li] = pr::quantile(&widths[first_width..], 0.5);
+        }
         let (fitted, inliers) = pr::robust_line(&points)?;
         rms = rms.max(pr::line_rms(&inliers, fitted));
         // Outliers count against coverage: under MIN_INLIER_SHARE fails it.
@@ -981,6 +1000,7 @@ fn fit_lines(
         dirs: [lines[0].1, lines[1].1],
         bar,
         widths,
+        bar_widths,
         coverage,
         rms,
     })
@@ -1105,6 +1125,15 @@ fn quadrants_are_dark(
 /// sides) are bright lines: brighter than both the quadrant inside and the
 /// ground beyond. A crossing of a panel grid or window frame is boxed in by
 /// such lines; a printed cross ends on plain ground.
+///
+/// Returns the lines right at the arms' ends, and those found only within a
+/// bar's width of them, peaking in a straight row. The arm's measured end
+/// lies a pixel or two either side of a crossing line's middle (blur, the
+/// end test's 3 px run): two panel grids' corners measured 0-1 lines at the
+/// ends and 4 more near them. A printed cross on a white disc measured 2 at
+/// the ends, and 2 more if the row may bend by half a bar: the disc's rim
+/// past the square is a bright band whose middle moved 3.5 px along a
+/// half-edge; the row may bend by a fifth of a bar (1.5 px at least).
 fn grid_lines_around(
     img: &GreyView,
     c: Pt,
@@ -1112,9 +1141,9 @@ fn grid_lines_around(
     lengths: &[f64; 4],
     bar: f64,
     strength: f64,
-) -> usize {
+) -> (usize, usize) {
     let o = (0.5 * bar).max(2.5);
-    let mut lines = 0;
+    let (mut at_end, mut near_end) = (0, 0);
     for k in 0..4 {
         let a = arm_dir(dirs, k);
         // The two quadrants beside arm k's end: towards arm k+1 and k-1.
@@ -1122,24 +1151,54 @@ fn grid_lines_around(
             let b = arm_dir(dirs, side);
             let (la, lb) = (lengths[k], lengths[side]);
             let (mut bright, mut total) = (0, 0);
+            // Where a line peaks near the arm's end, on each profile.
+            let mut peaks = Vec::new();
             for f in [0.3, 0.45, 0.6, 0.75, 0.9] {
                 let v = bar / 2.0 + f * (lb - bar / 2.0);
                 let at = |u: f64| {
                     let p = add(add(c, a, u), b, v);
                     img.sample(p.0, p.1)
                 };
-                let line = la + bar / 2.0;
-                if let (Some(mid), Some(inside), Some(outside)) =
-                    (at(line), at(line - bar / 2.0 - o), at(line + bar / 2.0 + o))
-                {
+                let ridge = |line: f64| -> Option<f64> {
+                    let (mid, inside, outside) = (
+                        at(line)?,
+                        at(line - bar / 2.0 - o)?,
+                        at(line + bar / 2.0 + o)?,
+                    );
+                    Some(mid - inside.max(outside))
+                };
+                let centre = la + bar / 2.0;
+                if let Some(here) = ridge(centre) {
                     total += 1;
-                    bright += (mid - inside.max(outside) >= 0.25 * strength) as usize;
+                    bright += (here >= 0.25 * strength) as usize;
+                }
+                let steps = (2.0 * bar).ceil() as i32;
+                let best = (-steps..=steps)
+                    .filter_map(|j| {
+                        let u = centre + 0.5 * j as f64;
+                        ridge(u).map(|r| (u, r))
+                    })
+                    .max_by(|x, y| x.1.total_cmp(&y.1));
+                if let Some((u, r)) = best {
+                    if r >= 0.25 * strength {
+                        peaks.push(u);
+                    }
                 }
             }
-            lines += (total == 5 && bright >= 3) as usize;
+            // ... on four profiles of five, in a straight row (ground's
+            // texture has ridges too, scattered).
+            let (lo, hi) = peaks
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(l, h), &u| (l.min(u), h.max(u)));
+            let in_row = peaks.len() >= 4 && hi - lo <= (0.2 * bar).max(1.5);
+            if total == 5 && bright >= 3 {
+                at_end += 1;
+            } else if total == 5 && in_row {
+                near_end += 1;
+            }
         }
     }
-    lines
+    (at_end, near_end)
 }
 
 /// A checker's quadrants are uniform out to its edge: on a 3x3 grid across
@@ -1405,5 +1464,140 @@ mod tests {
             let want = 0.5 + k as f64 * PI / 2.0;
             assert!((arm - want).abs() < 0.06, "arm {k}: {arm} vs {want}");
         }
+    }
+
+    /// A w x w image: each pixel the mean of 4x4 subsamples of `grey`.
+    fn render_image(w: usize, grey: impl Fn(f64, f64) -> f64) -> Vec<u8> {
+        let mut data = vec![0u8; w * w];
+        for y in 0..w {
+            for x in 0..w {
+                let mut sum = 0.0;
+                for j in 0..4 {
+                    for i in 0..4 {
+                        let (u, v) = (-0.375 + 0.25 * i as f64, -0.375 + 0.25 * j as f64);
+                        sum += grey(x as f64 + u, y as f64 + v);
+                    }
+                }
+                data[y * w + x] = (sum / 16.0).round() as u8;
+            }
+        }
+        data
+    }
+
+    /// `analyse` on a w x w image, started at its middle.
+    fn analyse_image(data: &[u8], w: usize, size_guess: f64) -> Result<Found, &'static str> {
+        let img = GreyView {
+            data,
+            width: w,
+            height: w,
+            stride: w,
+        };
+        let detector = CrosshairDetector::new(SizeRange {
+            min_px: 30.0,
+            max_px: 200.0,
+        });
+        let m = (w / 2) as f64;
+        detector.analyse(&img, (m, m), size_guess)
+    }
+
+    #[test]
+    fn crossing_road_markings_of_two_widths_are_not_a_cross() {
+        // A stripe 18 px wide across the frame and one 12 px wide, 140 px
+        // long, across it; then both 12 px wide (a cross lying on a stripe).
+        for (thick, thin) in [(18.0, 12.0), (12.0, 12.0)] {
+            let data = render_image(320, |x, y| {
+                let (dx, dy) = (x - 160.0, y - 160.0);
+                let on = dy.abs() < thick / 2.0 || (dx.abs() < thin / 2.0 && dy.abs() < 70.0);
+                if on {
+                    230.0
+                } else {
+                    30.0
+                }
+            });
+            let found = analyse_image(&data, 320, 140.0);
+            if thick == thin {
+                let f = found.expect("a cross on a stripe");
+                assert!(
+                    geometry::dist(f.centre, (160.0, 160.0)) < 0.05,
+                    "{:?}",
+                    f.centre
+                );
+            } else {
+                assert_eq!(found.err(), Some("bar widths differ"));
+            }
+        }
+    }
+
+    #[test]
+    fn a_panel_grids_corner_is_boxed_in_but_a_cross_on_a_white_disc_is_not() {
+        // Bright lines 3 px wide (blurred) 17 px apart: a 2x2-cell corner of
+        // a panel grid on grey ground, the cell up and left open to a dark
+        // shadow, so every arm from the middle crossing ends at a line. The
+        // arms' ends fall on the lines' middles, not half a bar past them.
+        let pitch = 17.0;
+        let step = |x: f64| 1.0 / (1.0 + (-x / 0.8).exp());
+        // (horizontal, offset across, from, to along)
+        let lines = [
+            (false, 0.0, -pitch, pitch),
+            (true, 0.0, -pitch, pitch),
+            (false, pitch, -pitch, pitch),
+            (true, pitch, -pitch, pitch),
+            (false, -pitch, 0.0, pitch),
+            (true, -pitch, 0.0, pitch),
+        ];
+        let grid = render_image(200, |x, y| {
+            let (dx, dy) = (x - 100.0, y - 100.0);
+            let line = lines
+                .iter()
+                .map(|&(horizontal, off, from, to)| {
+                    let (across, along) = if horizontal {
+                        (dy - off, dx)
+                    } else {
+                        (dx - off, dy)
+                    };
+                    (step(across + 1.5) - step(across - 1.5))
+                        * (step(along - from + 1.5) - step(along - to - 1.5))
+                })
+                .fold(0.0, f64::max);
+            let boxed = dx.abs() < pitch + 1.5 && dy.abs() < pitch + 1.5;
+            let ground = if boxed || (dx < 0.0 && dy < 0.0) {
+                30.0
+            } else {
+                110.0
+            };
+            ground + (200.0 - ground) * line
+        });
+        assert_eq!(
+            analyse_image(&grid, 200, 36.0).err(),
+            Some("grid lines around")
+        );
+
+        // A printed cross (66 px square, bars 13 px) on a white disc of
+        // radius 45 on grey ground: past the square the disc's rim is a
+        // bright band, narrowing towards the corners, so its ridge moves
+        // (7 px along each half-edge): not a line. (A disc of radius 58, a
+        // white margin all round, is taken for grid lines, by the lines at
+        // the arms' ends alone too.)
+        let on_disc = render_image(200, |x, y| {
+            let (dx, dy) = (x - 100.0, y - 100.0);
+            let (half, bar) = (33.0, 13.0);
+            if dx.abs() < half && dy.abs() < half {
+                if dx.abs() < bar / 2.0 || dy.abs() < bar / 2.0 {
+                    220.0
+                } else {
+                    25.0
+                }
+            } else if dx.hypot(dy) < 45.0 {
+                220.0
+            } else {
+                110.0
+            }
+        });
+        let f = analyse_image(&on_disc, 200, 66.0).expect("the cross on a disc");
+        assert!(
+            geometry::dist(f.centre, (100.0, 100.0)) < 0.05,
+            "{:?}",
+            f.centre
+        );
     }
 }

@@ -1535,7 +1535,6 @@ mod tests {
         // shadow, so every arm from the middle crossing ends at a line. The
         // arms' ends fall on the lines' middles, not half a bar past them.
         let pitch = 17.0;
-        let step = |x: f64| 1.0 / (1.0 + (-x / 0.8).exp());
         // (horizontal, offset across, from, to along)
         let lines = [
             (false, 0.0, -pitch, pitch),
@@ -1555,8 +1554,8 @@ mod tests {
                     } else {
                         (dx - off, dy)
                     };
-                    (step(across + 1.5) - step(across - 1.5))
-                        * (step(along - from + 1.5) - step(along - to - 1.5))
+                    (blurred_step(across, -1.5) - blurred_step(across, 1.5))
+                        * (blurred_step(along, from - 1.5) - blurred_step(along, to + 1.5))
                 })
                 .fold(0.0, f64::max);
             let boxed = dx.abs() < pitch + 1.5 && dy.abs() < pitch + 1.5;

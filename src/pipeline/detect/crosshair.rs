@@ -721,7 +721,8 @@ enum ArmEnd {
     /// A checker's boundary continues with the colours swapped: paving.
     Flips,
     /// Past a checker arm's end, an edge of the other polarity off the
-    /// arm's line: something lying beside the target, or a junction of
+    /// arm's line that does not cross the whole target (a shadow's edge
+    /// does): something lying beside the target, or a junction of
     /// unrelated regions.
     Beside,
     /// The arm leaves the tile before it can be judged.
@@ -884,12 +885,14 @@ fn measure_arm(
         // something else crosses the profiles wherever it happens to lie.
         let (mut aligned, mut tried) = (0, 0);
         let mut profile = Vec::new();
+        let mut edge = Vec::new();
         let mut t = from;
         while t <= to {
             tried += 1;
             if pr::line(img, add(c, a, t), perp(a), o, &mut profile).is_some() {
                 if let Some((s, _)) = edge_offset(&profile, o, -polarity, 0.7 * strength) {
                     aligned += (s.abs() <= (0.05 * length).max(1.0)) as usize;
+                    edge.push(add(add(c, a, t), perp(a), s));
                 }
             }
             t += 1.0;
@@ -897,12 +900,66 @@ fn measure_arm(
         if aligned * 2 > tried {
             return ArmEnd::Flips;
         }
+        if edge_crosses_target(img, c, &edge, size_guess, o, 0.7 * strength) {
+            return ArmEnd::Ends(arm);
+        }
         return ArmEnd::Beside;
     }
     if total > 0 && active * 2 > total {
         return ArmEnd::RunsOn(Some(arm));
     }
     ArmEnd::Ends(arm)
+}
+
+/// Whether the edge found past an arm's end (its points in `edge`) is a
+/// straight edge that crosses the whole target: the same side lighter on
+/// the target's far side, beyond its square, as here. A shadow's edge or a
+/// boundary of the ground runs under the target like that; something lying
+/// against the target ends at it, and paving's edges lie on the arms' lines
+/// (found before this is asked).
+fn edge_crosses_target(img: &GreyView, c: Pt, edge: &[Pt], size: f64, o: f64, strength: f64) -> bool {
+    if edge.len() < 6 {
+        return false;
+    }
+    let Some(((p0, d), inliers)) = pr::robust_line(edge) else {
+        return false;
+    };
+    if inliers.len() * 3 < edge.len() * 2 || pr::line_rms(&inliers, (p0, d)) > 1.0 {
+        return false;
+    }
+    let m = perp(d);
+    let across = |p: Pt| -> Option<f64> {
+        let (a, b) = (add(p, m, o), add(p, m, -o));
+        Some(img.sample(a.0, a.1)? - img.sample(b.0, b.1)?)
+    };
+    let near: Vec<f64> = inliers.iter().filter_map(|&p| across(p)).collect();
+    if near.len() < 6 {
+        return false;
+    }
+    let contrast = pr::quantile(&near, 0.5);
+    if contrast.abs() < strength {
+        return false;
+    }
+    // Along the line from its point nearest the centre, away from the
+    // near side's points, starting where it leaves the target's square.
+    let u0 = (c.0 - p0.0) * d.0 + (c.1 - p0.1) * d.1;
+    let foot = add(p0, d, u0);
+    let mid = inliers.iter().fold((0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1));
+    let mid = (mid.0 / inliers.len() as f64, mid.1 / inliers.len() as f64);
+    let side = -((mid.0 - foot.0) * d.0 + (mid.1 - foot.1) * d.1).signum();
+    let off = geometry::dist(foot, c);
+    let reach = 0.75 * size;
+    let start = (reach * reach - off * off).max(0.0).sqrt();
+    let (mut same, mut total) = (0, 0);
+    let mut u = start;
+    while u <= start + edge.len() as f64 {
+        if let Some(v) = across(add(foot, d, side * u)) {
+            same += (v * contrast.signum() >= 0.5 * contrast.abs()) as usize;
+        }
+        total += 1;
+        u += 1.0;
+    }
+    same * 3 >= total * 2
 }
 
 /// Result of fitting the two centre lines.
@@ -1598,5 +1655,43 @@ mod tests {
             "{:?}",
             f.centre
         );
+    }
+
+    #[test]
+    fn a_shadow_edge_past_a_checker_arm_is_not_an_object_beside_it() {
+        // An 80 px checker (greys 90 and 170) on ground of 150 centred at
+        // (100, 100). Below a line through (160, 104) rising 1 px per px,
+        // shadow (x 0.5): past the right arm's end, an edge of the other
+        // polarity crossing the arm's line. A shadow's edge cuts the target's
+        // corner and goes on beyond it; a dark object's edge that ends at
+        // the target (only right of the target's square) does not.
+        for shadow_crosses in [true, false] {
+            let data = render_image(200, |x, y| {
+                let (dx, dy) = (x - 100.0, y - 100.0);
+                let base = if dx.abs() < 40.0 && dy.abs() < 40.0 {
+                    if dx * dy > 0.0 {
+                        170.0
+                    } else {
+                        90.0
+                    }
+                } else {
+                    150.0
+                };
+                let below = y > 104.0 - (x - 160.0);
+                let shaded = below && (shadow_crosses || dx > 40.0);
+                base * if shaded { 0.5 } else { 1.0 }
+            });
+            let found = analyse_image(&data, 200, 80.0);
+            if shadow_crosses {
+                let f = found.expect("a checker under a shadow's edge");
+                assert!(
+                    geometry::dist(f.centre, (100.0, 100.0)) < 0.05,
+                    "{:?}",
+                    f.centre
+                );
+            } else {
+                assert_eq!(found.err(), Some("edge beside"));
+            }
+        }
     }
 }

@@ -917,7 +917,14 @@ fn measure_arm(
 /// boundary of the ground runs under the target like that; something lying
 /// against the target ends at it, and paving's edges lie on the arms' lines
 /// (found before this is asked).
-fn edge_crosses_target(img: &GreyView, c: Pt, edge: &[Pt], size: f64, o: f64, strength: f64) -> bool {
+fn edge_crosses_target(
+    img: &GreyView,
+    c: Pt,
+    edge: &[Pt],
+    size: f64,
+    o: f64,
+    strength: f64,
+) -> bool {
     if edge.len() < 6 {
         return false;
     }
@@ -944,7 +951,9 @@ fn edge_crosses_target(img: &GreyView, c: Pt, edge: &[Pt], size: f64, o: f64, st
     // near side's points, starting where it leaves the target's square.
     let u0 = (c.0 - p0.0) * d.0 + (c.1 - p0.1) * d.1;
     let foot = add(p0, d, u0);
-    let mid = inliers.iter().fold((0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1));
+    let mid = inliers
+        .iter()
+        .fold((0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1));
     let mid = (mid.0 / inliers.len() as f64, mid.1 / inliers.len() as f64);
     let side = -((mid.0 - foot.0) * d.0 + (mid.1 - foot.1) * d.1).signum();
     let off = geometry::dist(foot, c);

@@ -959,6 +959,7 @@ fn edge_crosses_target(
     let off = geometry::dist(foot, c);
     let reach = 0.75 * size;
     let start = (reach * reach - off * off).max(0.0).sqrt();
+    // As far as the edge was followed past the arm's end.
     let (mut same, mut total) = (0, 0);
     let mut u = start;
     while u <= start + edge.len() as f64 {
@@ -1550,6 +1551,11 @@ mod tests {
         data
     }
 
+    /// The found centre within 0.05 px of `truth`.
+    fn assert_centre(f: &Found, truth: Pt) {
+        assert!(geometry::dist(f.centre, truth) < 0.05, "{:?}", f.centre);
+    }
+
     /// `analyse` on a w x w image, started at its middle.
     fn analyse_image(data: &[u8], w: usize, size_guess: f64) -> Result<Found, &'static str> {
         let img = GreyView {
@@ -1583,11 +1589,7 @@ mod tests {
             let found = analyse_image(&data, 320, 140.0);
             if thick == thin {
                 let f = found.expect("a cross on a stripe");
-                assert!(
-                    geometry::dist(f.centre, (160.0, 160.0)) < 0.05,
-                    "{:?}",
-                    f.centre
-                );
+                assert_centre(&f, (160.0, 160.0));
             } else {
                 assert_eq!(found.err(), Some("bar widths differ"));
             }
@@ -1659,17 +1661,13 @@ mod tests {
             }
         });
         let f = analyse_image(&on_disc, 200, 66.0).expect("the cross on a disc");
-        assert!(
-            geometry::dist(f.centre, (100.0, 100.0)) < 0.05,
-            "{:?}",
-            f.centre
-        );
+        assert_centre(&f, (100.0, 100.0));
     }
 
     #[test]
     fn a_shadow_edge_past_a_checker_arm_is_not_an_object_beside_it() {
         // An 80 px checker (greys 90 and 170) on ground of 150 centred at
-        // (100, 100). Below a line through (160, 104) rising 1 px per px,
+        // (100, 100). Below the line y = 264 - x (through (160, 104)),
         // shadow (x 0.5): past the right arm's end, an edge of the other
         // polarity crossing the arm's line. A shadow's edge cuts the target's
         // corner and goes on beyond it; a dark object's edge that ends at
@@ -1693,11 +1691,7 @@ mod tests {
             let found = analyse_image(&data, 200, 80.0);
             if shadow_crosses {
                 let f = found.expect("a checker under a shadow's edge");
-                assert!(
-                    geometry::dist(f.centre, (100.0, 100.0)) < 0.05,
-                    "{:?}",
-                    f.centre
-                );
+                assert_centre(&f, (100.0, 100.0));
             } else {
                 assert_eq!(found.err(), Some("edge beside"));
             }

@@ -169,7 +169,7 @@ impl CircleDetector {
     fn analyse(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
         let mut e = start;
         let mut pass = rays(img, &e).ok_or("no edges")?;
-        let bullseye = is_bullseye(&pass);
+        let mut bullseye = is_bullseye(&pass);
         let mut outer = None;
         for _ in 0..2 {
             let inner = fit(&pass.edges[0]).ok_or("inner fit")?;
@@ -178,6 +178,10 @@ impl CircleDetector {
             }
             e = inner;
             pass = rays(img, &e).ok_or("no edges")?;
+            // The threshold's contour can miss a small centre disc's edge by
+            // a pixel or two, which puts the rings outside the rays' window
+            // (0.3 of the radius); decide again on the refined ellipse.
+            bullseye |= is_bullseye(&pass);
         }
         let n = pass.rays as f64;
         let edges_used = if bullseye { 3 } else { 1 };

@@ -31,6 +31,7 @@ use super::geometry::{self, Pt};
 use super::harmonic::{self, Candidate, RingBasis, Symmetry};
 use super::profile::{self as pr, add, perp, unit};
 use super::refine::{fit_line, intersect, GreyView};
+use super::shadow;
 use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Ring samples: 2.8 degrees apart.
@@ -69,6 +70,12 @@ const MIN_LEAD_FLIPS: usize = 4;
 /// Largest RMS distance of edge points from their fitted line: above it the
 /// "lines" are not straight (a fold, an object on the target, clutter).
 const MAX_FIT_RMS_PX: f64 = 0.45;
+/// Radius, in size guesses, searched for a shadow edge across a failed
+/// candidate: the target's square (corners at 0.71) and ground around it.
+const SHADOW_SEARCH: f64 = 1.1;
+/// Half side, in size guesses, of the copy with the shadow lifted: the arms'
+/// walk and the ground checked past their ends (about 1.9 arm lengths).
+const SHADOW_COPY: f64 = 1.3;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Kind {
@@ -436,6 +443,44 @@ impl CrosshairDetector {
             confidence,
         })
     }
+
+    /// A candidate that failed, analysed again with the shadow edges across
+    /// it (if any are found) lifted: a shadow's edge ends arms early and
+    /// splits quadrants and bars into two levels. A second edge (a shadow
+    /// band, or two shadows) is looked for on the copy with the first lifted.
+    fn analyse_lifted(
+        &self,
+        img: &GreyView,
+        start: Pt,
+        size_guess: f64,
+    ) -> Result<Found, &'static str> {
+        let radius = SHADOW_SEARCH * size_guess;
+        let first = shadow::find(img, start, radius).ok_or("no shadow edge")?;
+        let half = (SHADOW_COPY * size_guess).min(0.75 * self.sizes.max_px + size_guess);
+        let mut lifted = shadow::lift(img, start, half, &first);
+        let local = lifted.to_copy(start);
+        let mut edges = vec![first];
+        loop {
+            let why = match self.analyse(&lifted.view(), local, size_guess) {
+                Ok(found) => {
+                    let found = lifted.to_tile(found);
+                    // Half a side: through the target's square, near its middle.
+                    return if shadow::edges_cross(&edges, found.centre, 0.5 * found.size) {
+                        Ok(found)
+                    } else {
+                        Err("shadow edge off the target")
+                    };
+                }
+                Err(why) => why,
+            };
+            if edges.len() == shadow::MAX_EDGES {
+                return Err(why);
+            }
+            let more = shadow::find(&lifted.view(), local, radius).ok_or(why)?;
+            lifted.lift(&more);
+            edges.push(lifted.edge_in_tile(&more));
+        }
+    }
 }
 
 impl Detector for CrosshairDetector {
@@ -471,16 +516,20 @@ impl Detector for CrosshairDetector {
             .into_iter()
             .filter_map(|(c, s)| match self.analyse(&img, c, s) {
                 Ok(f) => Some(f),
-                Err(why) => {
-                    tracing::trace!(
-                        x = c.0 + origin.0 as f64,
-                        y = c.1 + origin.1 as f64,
-                        size = s,
-                        why,
-                        "crosshair candidate rejected"
-                    );
-                    None
-                }
+                Err(why) => match self.analyse_lifted(&img, c, s) {
+                    Ok(f) => Some(f),
+                    Err(lifted) => {
+                        tracing::trace!(
+                            x = c.0 + origin.0 as f64,
+                            y = c.1 + origin.1 as f64,
+                            size = s,
+                            why,
+                            lifted,
+                            "crosshair candidate rejected"
+                        );
+                        None
+                    }
+                },
             })
             .collect();
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);

@@ -13,6 +13,7 @@ pub mod geometry;
 mod harmonic;
 mod profile;
 pub mod refine;
+mod shadow;
 
 use std::fmt;
 use std::str::FromStr;

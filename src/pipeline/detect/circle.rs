@@ -28,6 +28,7 @@ use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::profile as pr;
 use super::refine::{intersect, GreyView};
+use super::shadow;
 use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 /// Fewest grey levels between a target's dark and light parts.
@@ -74,6 +75,12 @@ const ADJACENT_ITERATIONS: usize = 20;
 /// Largest RMS distance of a board side's subpixel edge points from their
 /// line (a clean side: 0.3-0.6 px).
 const MAX_SIDE_RMS_PX: f64 = 0.8;
+/// Radius, in candidate radii, searched for a shadow edge across a failed
+/// candidate: a disc's board (corners at 2.8) and a bullseye's rings (3).
+const SHADOW_SEARCH: f64 = 3.5;
+/// Half side, in candidate radii, of the copy with a shadow lifted: the
+/// rays walk to where a board ends, up to 4.5 radii out.
+const SHADOW_COPY: f64 = 4.8;
 /// A contour is an ellipse when its area is this close to its fit's.
 const ROUNDNESS: (f64, f64) = (0.85, 1.15);
 
@@ -241,6 +248,25 @@ impl CircleDetector {
     }
 }
 
+impl CircleDetector {
+    /// A candidate that failed, analysed again with the shadow edges across
+    /// it (if any are found) lifted: a shadow's edge across a board or the
+    /// rings breaks their uniform levels.
+    fn analyse_lifted(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
+        let r = start.radius();
+        // Reach: within three quarters of the size (the disc's diameter or
+        // the bullseye's), through the disc or the rings' board.
+        shadow::second_look(
+            img,
+            start.c,
+            SHADOW_SEARCH * r,
+            SHADOW_COPY * r,
+            0.75,
+            |view, at| self.analyse(view, Ellipse { c: at, ..start }),
+        )
+    }
+}
+
 impl Detector for CircleDetector {
     fn marker_type(&self) -> MarkerType {
         MarkerType::Circle
@@ -282,16 +308,20 @@ impl Detector for CircleDetector {
             .iter()
             .filter_map(|e| match self.analyse(&img, *e) {
                 Ok(f) => Some(f),
-                Err(why) => {
-                    tracing::trace!(
-                        x = e.c.0 + origin.0 as f64,
-                        y = e.c.1 + origin.1 as f64,
-                        size = 2.0 * e.radius(),
-                        why,
-                        "circle candidate rejected"
-                    );
-                    None
-                }
+                Err(why) => match self.analyse_lifted(&img, *e) {
+                    Ok(f) => Some(f),
+                    Err(lifted) => {
+                        tracing::trace!(
+                            x = e.c.0 + origin.0 as f64,
+                            y = e.c.1 + origin.1 as f64,
+                            size = 2.0 * e.radius(),
+                            why,
+                            lifted,
+                            "circle candidate rejected"
+                        );
+                        None
+                    }
+                },
             })
             .collect();
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);

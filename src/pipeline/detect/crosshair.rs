@@ -446,40 +446,23 @@ impl CrosshairDetector {
 
     /// A candidate that failed, analysed again with the shadow edges across
     /// it (if any are found) lifted: a shadow's edge ends arms early and
-    /// splits quadrants and bars into two levels. A second edge (a shadow
-    /// band, or two shadows) is looked for on the copy with the first lifted.
+    /// splits quadrants and bars into two levels.
     fn analyse_lifted(
         &self,
         img: &GreyView,
         start: Pt,
         size_guess: f64,
     ) -> Result<Found, &'static str> {
-        let radius = SHADOW_SEARCH * size_guess;
-        let first = shadow::find(img, start, radius).ok_or("no shadow edge")?;
         let half = (SHADOW_COPY * size_guess).min(0.75 * self.sizes.max_px + size_guess);
-        let mut lifted = shadow::lift(img, start, half, &first);
-        let local = lifted.to_copy(start);
-        let mut edges = vec![first];
-        loop {
-            let why = match self.analyse(&lifted.view(), local, size_guess) {
-                Ok(found) => {
-                    let found = lifted.to_tile(found);
-                    // Half a side: through the target's square, near its middle.
-                    return if shadow::edges_cross(&edges, found.centre, 0.5 * found.size) {
-                        Ok(found)
-                    } else {
-                        Err("shadow edge off the target")
-                    };
-                }
-                Err(why) => why,
-            };
-            if edges.len() == shadow::MAX_EDGES {
-                return Err(why);
-            }
-            let more = shadow::find(&lifted.view(), local, radius).ok_or(why)?;
-            lifted.lift(&more);
-            edges.push(lifted.edge_in_tile(&more));
-        }
+        // Reach: half a side, through the target's square near its middle.
+        shadow::second_look(
+            img,
+            start,
+            SHADOW_SEARCH * size_guess,
+            half,
+            0.5,
+            |view, at| self.analyse(view, at, size_guess),
+        )
     }
 }
 

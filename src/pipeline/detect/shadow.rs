@@ -151,6 +151,45 @@ pub fn edges_cross(edges: &[ShadowEdge], centre: Pt, reach: f64) -> bool {
     })
 }
 
+/// A second look at a candidate that failed: `analyse` (given a view and
+/// the candidate's start in it) runs again on a copy of the square of half
+/// side `half` around `start` with the shadow edge found within `radius`
+/// lifted, then with a second one lifted too. What it finds stands only when
+/// the edges cross the target (see [`edges_cross`], `reach` as a fraction
+/// of the found size).
+pub fn second_look(
+    img: &GreyView,
+    start: Pt,
+    radius: f64,
+    half: f64,
+    reach: f64,
+    analyse: impl Fn(&GreyView, Pt) -> Result<Found, &'static str>,
+) -> Result<Found, &'static str> {
+    let first = find(img, start, radius).ok_or("no shadow edge")?;
+    let mut lifted = lift(img, start, half, &first);
+    let local = lifted.to_copy(start);
+    let mut edges = vec![first];
+    loop {
+        let why = match analyse(&lifted.view(), local) {
+            Ok(found) => {
+                let found = lifted.to_tile(found);
+                return if edges_cross(&edges, found.centre, reach * found.size) {
+                    Ok(found)
+                } else {
+                    Err("shadow edge off the target")
+                };
+            }
+            Err(why) => why,
+        };
+        if edges.len() == MAX_EDGES {
+            return Err(why);
+        }
+        let more = find(&lifted.view(), local, radius).ok_or(why)?;
+        lifted.lift(&more);
+        edges.push(lifted.edge_in_tile(&more));
+    }
+}
+
 /// The shadow edge that crosses the circle of `radius` around `c`, if one
 /// does: a straight line along which the light either side keeps one ratio.
 pub fn find(img: &GreyView, c: Pt, radius: f64) -> Option<ShadowEdge> {

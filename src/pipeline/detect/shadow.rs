@@ -113,14 +113,6 @@ impl Lifted {
     pub fn to_copy(&self, p: Pt) -> Pt {
         (p.0 - self.origin.0 as f64, p.1 - self.origin.1 as f64)
     }
-    /// An edge found on the copy, in the tile's pixels.
-    pub fn edge_in_tile(&self, e: &ShadowEdge) -> ShadowEdge {
-        let (ox, oy) = (self.origin.0 as f64, self.origin.1 as f64);
-        ShadowEdge {
-            d: e.d + e.n.0 * ox + e.n.1 * oy,
-            ..*e
-        }
-    }
     /// A target found in the copy, in the tile's pixels.
     pub fn to_tile(&self, f: Found) -> Found {
         let (ox, oy) = (self.origin.0 as f64, self.origin.1 as f64);
@@ -132,31 +124,16 @@ impl Lifted {
     }
 }
 
-/// Shadow edges lifted for one candidate at most: one shadow's edge, or
-/// both edges of a band, or two shadows.
-pub const MAX_EDGES: usize = 2;
-
-/// Whether lifted `edges` can be what hid the target at `centre`: the first
-/// passes within `reach` of it (through the target, not beside it, as a
-/// boundary of paving or of a panel beside a junction would), the others
-/// within `reach` x sqrt 2.
-pub fn edges_cross(edges: &[ShadowEdge], centre: Pt, reach: f64) -> bool {
-    edges.iter().enumerate().all(|(k, e)| {
-        let limit = if k == 0 {
-            reach
-        } else {
-            reach * std::f64::consts::SQRT_2
-        };
-        e.distance(centre).abs() <= limit
-    })
-}
-
 /// A second look at a candidate that failed: `analyse` (given a view and
 /// the candidate's start in it) runs again on a copy of the square of half
 /// side `half` around `start` with the shadow edge found within `radius`
-/// lifted, then with a second one lifted too. What it finds stands only when
-/// the edges cross the target (see [`edges_cross`], `reach` as a fraction
-/// of the found size).
+/// lifted. What it finds stands only when the edge passes within `reach`
+/// (a fraction of the found size) of its centre: through the target, not
+/// beside it, as a boundary of paving or of a panel beside a junction would.
+///
+/// One edge only: lifting a second one as well (a band's other edge, a
+/// second shadow) found no more targets on 28 frames and made a paving
+/// junction between two perpendicular borders into a checker.
 pub fn second_look(
     img: &GreyView,
     start: Pt,
@@ -165,29 +142,13 @@ pub fn second_look(
     reach: f64,
     analyse: impl Fn(&GreyView, Pt) -> Result<Found, &'static str>,
 ) -> Result<Found, &'static str> {
-    let first = find(img, start, radius).ok_or("no shadow edge")?;
-    let mut lifted = lift(img, start, half, &first);
-    let local = lifted.to_copy(start);
-    let mut edges = vec![first];
-    loop {
-        let why = match analyse(&lifted.view(), local) {
-            Ok(found) => {
-                let found = lifted.to_tile(found);
-                return if edges_cross(&edges, found.centre, reach * found.size) {
-                    Ok(found)
-                } else {
-                    Err("shadow edge off the target")
-                };
-            }
-            Err(why) => why,
-        };
-        if edges.len() == MAX_EDGES {
-            return Err(why);
-        }
-        let more = find(&lifted.view(), local, radius).ok_or(why)?;
-        lifted.lift(&more);
-        edges.push(lifted.edge_in_tile(&more));
+    let edge = find(img, start, radius).ok_or("no shadow edge")?;
+    let lifted = lift(img, start, half, &edge);
+    let found = lifted.to_tile(analyse(&lifted.view(), lifted.to_copy(start))?);
+    if edge.distance(found.centre).abs() > reach * found.size {
+        return Err("shadow edge off the target");
     }
+    Ok(found)
 }
 
 /// The shadow edge that crosses the circle of `radius` around `c`, if one
@@ -452,36 +413,19 @@ pub fn lift(img: &GreyView, c: Pt, half: f64, edge: &ShadowEdge) -> Lifted {
     let x1 = ((c.0 + half).ceil().max(0.0) as usize).min(img.width - 1);
     let y1 = ((c.1 + half).ceil().max(0.0) as usize).min(img.height - 1);
     let (width, height) = (x1.saturating_sub(x0) + 1, y1.saturating_sub(y0) + 1);
-    let mut data = vec![0u8; width * height];
-    for y in 0..height {
-        let row = &img.data[(y0 + y) * img.stride + x0..][..width];
-        data[y * width..][..width].copy_from_slice(row);
+    let mut data = Vec::with_capacity(width * height);
+    for y in y0..y0 + height {
+        for x in x0..x0 + width {
+            let light = edge.light((x as f64, y as f64));
+            let v = img.data[y * img.stride + x] as f64 / light;
+            data.push(v.round().min(255.0) as u8);
+        }
     }
-    let mut lifted = Lifted {
+    Lifted {
         data,
         width,
         height,
         origin: (x0, y0),
-    };
-    let (ox, oy) = (x0 as f64, y0 as f64);
-    lifted.lift(&ShadowEdge {
-        d: edge.d - edge.n.0 * ox - edge.n.1 * oy,
-        ..*edge
-    });
-    lifted
-}
-
-impl Lifted {
-    /// Gives back the light `edge` (in the copy's pixels) takes away: a
-    /// second shadow edge, found on the copy once the first is lifted.
-    pub fn lift(&mut self, edge: &ShadowEdge) {
-        for y in 0..self.height {
-            for x in 0..self.width {
-                let v = &mut self.data[y * self.width + x];
-                let light = edge.light((x as f64, y as f64));
-                *v = (*v as f64 / light).round().min(255.0) as u8;
-            }
-        }
     }
 }
 

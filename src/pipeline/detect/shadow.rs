@@ -538,4 +538,24 @@ mod tests {
         let data = scene((1.0, 0.0), -1e9, 1.0);
         assert!(find(&view(&data), (100.0, 100.0), 66.0).is_none());
     }
+
+    /// A straight border between two materials (a panel's frame against
+    /// ground) keeps one ratio along its whole length too, but over one
+    /// level either side: not light.
+    #[test]
+    fn a_border_between_two_materials_is_not_a_shadow_edge() {
+        let n = pr::unit(0.7);
+        let d = n.0 * 100.0 + n.1 * 100.0 + 4.0;
+        let mut data = vec![0u8; 200 * 200];
+        for y in 0..200 {
+            for x in 0..200 {
+                let lit = n.0 * x as f64 + n.1 * y as f64 >= d;
+                data[y * 200 + x] = if lit { 200 } else { 110 };
+            }
+        }
+        assert!(find(&view(&data), (100.0, 100.0), 66.0).is_none());
+        // The same line across the cross, scaling the light, is a shadow.
+        let shadowed = scene(n, d, 0.55);
+        assert!(find(&view(&shadowed), (100.0, 100.0), 66.0).is_some());
+    }
 }

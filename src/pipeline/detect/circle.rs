@@ -24,7 +24,7 @@ use opencv::prelude::*;
 
 use super::blobs;
 use super::fiducial::grey_view;
-use super::found::{best_per_target, to_detection, Found};
+use super::found::{best_per_target, better_fit, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::profile as pr;
 use super::refine::{intersect, GreyView};
@@ -315,7 +315,9 @@ impl Detector for CircleDetector {
         let mut found: Vec<Found> = starts
             .iter()
             .filter_map(|e| match self.analyse(&img, *e) {
-                Ok(f) => Some(f),
+                // A target in partial shadow can pass with its centre moved
+                // by the shadow's edge: with an edge lifted, the better fit.
+                Ok(f) => Some(better_fit(f, self.analyse_lifted(&img, *e))),
                 Err(why) if NOT_SHADOW.contains(&why) => {
                     tracing::trace!(
                         x = e.c.0 + origin.0 as f64,

@@ -37,6 +37,15 @@ pub fn best_per_target(found: &mut Vec<Found>) -> Vec<Found> {
     kept
 }
 
+/// Of a target found as it is and (maybe) found again with a shadow lifted,
+/// the one whose edges fit their lines or ellipse better.
+pub fn better_fit(first: Found, second: Result<Found, &'static str>) -> Found {
+    match second {
+        Ok(second) if second.rms < first.rms => second,
+        _ => first,
+    }
+}
+
 pub fn to_detection(
     marker_type: MarkerType,
     f: Found,

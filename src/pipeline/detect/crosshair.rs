@@ -1437,6 +1437,7 @@ fn quadrant_levels(img: &GreyView, c: Pt, dirs: &[Pt; 2], lengths: &[f64; 4]) ->
 
 #[cfg(test)]
 mod tests {
+    use super::super::test_image::{render_image, Cross};
     use super::*;
 
     fn ring_of(f: impl Fn(f64) -> f64) -> Vec<f64> {
@@ -1596,24 +1597,6 @@ mod tests {
         }
     }
 
-    /// A w x w image: each pixel the mean of 4x4 subsamples of `grey`.
-    fn render_image(w: usize, grey: impl Fn(f64, f64) -> f64) -> Vec<u8> {
-        let mut data = vec![0u8; w * w];
-        for y in 0..w {
-            for x in 0..w {
-                let mut sum = 0.0;
-                for j in 0..4 {
-                    for i in 0..4 {
-                        let (u, v) = (-0.375 + 0.25 * i as f64, -0.375 + 0.25 * j as f64);
-                        sum += grey(x as f64 + u, y as f64 + v);
-                    }
-                }
-                data[y * w + x] = (sum / 16.0).round() as u8;
-            }
-        }
-        data
-    }
-
     /// The found centre within 0.05 px of `truth`.
     fn assert_centre(f: &Found, truth: Pt) {
         assert!(geometry::dist(f.centre, truth) < 0.05, "{:?}", f.centre);
@@ -1766,21 +1749,15 @@ mod tests {
     /// 0.55) on one side of the line `off` px from the centre, normal at
     /// `angle`.
     fn shadowed_cross(angle: f64, off: f64) -> Vec<u8> {
-        let n = unit(angle);
-        render_image(300, |x, y| {
-            let (dx, dy) = (x - 150.25, y - 149.5);
-            let base = if dx.abs() < 50.0 && dy.abs() < 50.0 {
-                if dx.abs() < 10.0 || dy.abs() < 10.0 {
-                    176.0
-                } else {
-                    78.0
-                }
-            } else {
-                120.0 + 12.0 * ((x / 7.0).sin() * (y / 11.0).cos())
-            };
-            let lit = n.0 * dx + n.1 * dy - off >= 0.0;
-            base * if lit { 1.0 } else { 0.55 }
-        })
+        let cross = Cross {
+            centre: (150.25, 149.5),
+            side: 100.0,
+            bar: 20.0,
+            white: 176.0,
+            black: 78.0,
+        };
+        let ground = |x: f64, y: f64| 120.0 + 12.0 * ((x / 7.0).sin() * (y / 11.0).cos());
+        cross.render(300, ground, unit(angle), off, 0.55)
     }
 
     /// A shadow's edge across a faint cross ends arms early or breaks its

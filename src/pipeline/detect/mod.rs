@@ -14,6 +14,8 @@ mod harmonic;
 mod profile;
 pub mod refine;
 mod shadow;
+#[cfg(test)]
+mod test_image;
 
 use std::fmt;
 use std::str::FromStr;

@@ -448,41 +448,24 @@ fn normal_cdf(x: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use super::super::test_image::Cross;
     use super::*;
 
     /// A cross target (black square of side 60 with white bars 14 wide)
     /// centred at (100, 100) on grey ground, a shadow (x `factor`) on the
     /// side of the line `n . p = d` away from `n`, box-filtered edges.
     fn scene(n: Pt, d: f64, factor: f64) -> Vec<u8> {
-        let w = 200;
-        let mut out = vec![0u8; w * w];
-        for y in 0..w {
-            for x in 0..w {
-                let mut acc = 0.0;
-                for sy in 0..4 {
-                    for sx in 0..4 {
-                        let (px, py) = (
-                            x as f64 + (sx as f64 - 1.5) / 4.0,
-                            y as f64 + (sy as f64 - 1.5) / 4.0,
-                        );
-                        let (u, v) = (px - 100.0, py - 100.0);
-                        let grey = if u.abs() < 30.0 && v.abs() < 30.0 {
-                            if u.abs() < 7.0 || v.abs() < 7.0 {
-                                220.0
-                            } else {
-                                25.0
-                            }
-                        } else {
-                            110.0 + 20.0 * ((px / 9.0).sin() * (py / 13.0).cos())
-                        };
-                        let lit = n.0 * px + n.1 * py - d >= 0.0;
-                        acc += if lit { grey } else { grey * factor };
-                    }
-                }
-                out[y * w + x] = (acc / 16.0).round() as u8;
-            }
-        }
-        out
+        let cross = Cross {
+            centre: (100.0, 100.0),
+            side: 60.0,
+            bar: 14.0,
+            white: 220.0,
+            black: 25.0,
+        };
+        let ground = |x: f64, y: f64| 110.0 + 20.0 * ((x / 9.0).sin() * (y / 13.0).cos());
+        // The line n . p = d as an offset from the cross's centre.
+        let off = d - n.0 * 100.0 - n.1 * 100.0;
+        cross.render(200, ground, n, off, factor)
     }
 
     fn view(data: &[u8]) -> GreyView<'_> {

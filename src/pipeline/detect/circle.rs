@@ -24,7 +24,7 @@ use opencv::prelude::*;
 
 use super::blobs;
 use super::fiducial::grey_view;
-use super::found::{best_per_target, better_fit, to_detection, Found};
+use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::profile as pr;
 use super::refine::{intersect, GreyView};
@@ -251,12 +251,10 @@ impl CircleDetector {
             confidence,
         })
     }
-}
 
-impl CircleDetector {
-    /// A candidate that failed, analysed again with the shadow edges across
-    /// it (if any are found) lifted: a shadow's edge across a board or the
-    /// rings breaks their uniform levels.
+    /// The candidate analysed again with the shadow edge across it (if one
+    /// is found) lifted: a shadow's edge across a board or the rings breaks
+    /// their uniform levels.
     fn analyse_lifted(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
         let r = start.radius();
         // Reach: within three quarters of the size (the disc's diameter or
@@ -314,23 +312,12 @@ impl Detector for CircleDetector {
         });
         let mut found: Vec<Found> = starts
             .iter()
-            .filter_map(|e| match self.analyse(&img, *e) {
-                // A target in partial shadow can pass with its centre moved
-                // by the shadow's edge: with an edge lifted, the better fit.
-                Ok(f) => Some(better_fit(f, self.analyse_lifted(&img, *e))),
-                Err(why) if NOT_SHADOW.contains(&why) => {
-                    tracing::trace!(
-                        x = e.c.0 + origin.0 as f64,
-                        y = e.c.1 + origin.1 as f64,
-                        size = 2.0 * e.radius(),
-                        why,
-                        "circle candidate rejected"
-                    );
-                    None
-                }
-                Err(why) => match self.analyse_lifted(&img, *e) {
-                    Ok(f) => Some(f),
-                    Err(lifted) => {
+            .filter_map(|e| {
+                let verdict = shadow::with_second_look(self.analyse(&img, *e), &NOT_SHADOW, || {
+                    self.analyse_lifted(&img, *e)
+                });
+                verdict
+                    .map_err(|(why, lifted)| {
                         tracing::trace!(
                             x = e.c.0 + origin.0 as f64,
                             y = e.c.1 + origin.1 as f64,
@@ -338,10 +325,9 @@ impl Detector for CircleDetector {
                             why,
                             lifted,
                             "circle candidate rejected"
-                        );
-                        None
-                    }
-                },
+                        )
+                    })
+                    .ok()
             })
             .collect();
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);

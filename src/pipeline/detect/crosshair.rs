@@ -26,7 +26,7 @@ use opencv::core::Mat;
 use opencv::prelude::*;
 
 use super::fiducial::grey_view;
-use super::found::{best_per_target, better_fit, to_detection, Found};
+use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::harmonic::{self, Candidate, RingBasis, Symmetry};
 use super::profile::{self as pr, add, perp, unit};
@@ -463,9 +463,9 @@ impl CrosshairDetector {
         })
     }
 
-    /// A candidate that failed, analysed again with the shadow edges across
-    /// it (if any are found) lifted: a shadow's edge ends arms early and
-    /// splits quadrants and bars into two levels.
+    /// The candidate analysed again with the shadow edge across it (if one
+    /// is found) lifted: a shadow's edge ends arms early and splits
+    /// quadrants and bars into two levels.
     fn analyse_lifted(
         &self,
         img: &GreyView,
@@ -516,23 +516,13 @@ impl Detector for CrosshairDetector {
         );
         let mut found: Vec<Found> = starts
             .into_iter()
-            .filter_map(|(c, s)| match self.analyse(&img, c, s) {
-                // A target in partial shadow can pass with its centre moved
-                // by the shadow's edge: with an edge lifted, the better fit.
-                Ok(f) => Some(better_fit(f, self.analyse_lifted(&img, c, s))),
-                Err(why) if NOT_SHADOW.contains(&why) => {
-                    tracing::trace!(
-                        x = c.0 + origin.0 as f64,
-                        y = c.1 + origin.1 as f64,
-                        size = s,
-                        why,
-                        "crosshair candidate rejected"
-                    );
-                    None
-                }
-                Err(why) => match self.analyse_lifted(&img, c, s) {
-                    Ok(f) => Some(f),
-                    Err(lifted) => {
+            .filter_map(|(c, s)| {
+                let verdict =
+                    shadow::with_second_look(self.analyse(&img, c, s), &NOT_SHADOW, || {
+                        self.analyse_lifted(&img, c, s)
+                    });
+                verdict
+                    .map_err(|(why, lifted)| {
                         tracing::trace!(
                             x = c.0 + origin.0 as f64,
                             y = c.1 + origin.1 as f64,
@@ -540,10 +530,9 @@ impl Detector for CrosshairDetector {
                             why,
                             lifted,
                             "crosshair candidate rejected"
-                        );
-                        None
-                    }
-                },
+                        )
+                    })
+                    .ok()
             })
             .collect();
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);

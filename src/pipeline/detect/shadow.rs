@@ -12,7 +12,7 @@
 
 use std::f64::consts::TAU;
 
-use super::found::Found;
+use super::found::{better_fit, Found};
 use super::geometry::Pt;
 use super::profile::{self as pr, add, perp};
 use super::refine::GreyView;
@@ -121,6 +121,23 @@ impl Lifted {
             corners: f.corners.map(|(x, y)| (x + ox, y + oy)),
             ..f
         }
+    }
+}
+
+/// A candidate's verdict with the second look: a target found at first
+/// keeps the better fit of both looks (a shadow's edge can move an
+/// accepted centre); a rejection in `not_shadow` (a reason a shadow does
+/// not cause) stands without a second look; any other gets one. A
+/// rejection carries both looks' reasons ("not tried" for the second).
+pub fn with_second_look(
+    first: Result<Found, &'static str>,
+    not_shadow: &[&str],
+    second: impl FnOnce() -> Result<Found, &'static str>,
+) -> Result<Found, (&'static str, &'static str)> {
+    match first {
+        Ok(found) => Ok(better_fit(found, second())),
+        Err(why) if not_shadow.contains(&why) => Err((why, "not tried")),
+        Err(why) => second().map_err(|lifted| (why, lifted)),
     }
 }
 

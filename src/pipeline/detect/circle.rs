@@ -79,8 +79,8 @@ const MAX_SIDE_RMS_PX: f64 = 0.8;
 /// candidate: a disc's board (corners at 2.8) and a bullseye's rings (3).
 const SHADOW_SEARCH: f64 = 3.5;
 /// Rejections that a second look with a shadow lifted is not tried for.
-/// Most candidates on a cluttered frame (about 90%) are dark blobs without
-/// a uniform ring of board around them; on 12 frames of printed circles
+/// Most rejections on a cluttered frame (1172 of 1430 on clutter seeds
+/// 700-701) are dark blobs without a uniform ring of board around them; on 12 frames of printed circles
 /// every target a second look found had first failed on its board's square.
 const NOT_SHADOW: [&str; 3] = ["board not uniform", "no edges", "inner fit"];
 /// Half side, in candidate radii, of the copy with a shadow lifted: the

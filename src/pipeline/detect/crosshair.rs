@@ -95,6 +95,9 @@ const NOT_SHADOW: [&str; 9] = [
 /// Half side, in size guesses, of the copy with the shadow lifted: the arms'
 /// walk and the ground checked past their ends (about 1.9 arm lengths).
 const SHADOW_COPY: f64 = 1.3;
+/// Half-sides of a cross's board that must show against the ground when one
+/// bar runs on along a stripe and the opposite one ends far out.
+const BOARD_SIDES_SEEN: usize = 4;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Kind {
@@ -328,6 +331,25 @@ impl CrosshairDetector {
         // opposite bars go on to the stripe's ends, the two across it stop
         // at the board's edge. Those bars as long as the arms across.
         let mut under_stripe = 0;
+        // One bar runs on along a stripe and the opposite one went on along
+        // it too, ending where the stripe leaves the bar's line or fades:
+        // both as long as the arms across. Two road markings crossing look
+        // the same, so the board must show against the ground (below).
+        let mut one_sided_stripe = false;
+        if kind == Kind::Cross && runs_on.len() == 1 {
+            let k = runs_on[0].0;
+            let (p, q) = (arms[(k + 1) % 4].length, arms[(k + 3) % 4].length);
+            let (short_lo, short_hi) = (p.min(q), p.max(q));
+            if short_hi / short_lo <= MAX_ARM_RATIO
+                && arms[(k + 2) % 4].length > MAX_ARM_RATIO * short_hi
+            {
+                for j in [k, (k + 2) % 4] {
+                    arms[j].length = (p + q) / 2.0;
+                }
+                under_stripe = 1;
+                one_sided_stripe = true;
+            }
+        }
         if kind == Kind::Cross && runs_on.is_empty() {
             for k in 0..2 {
                 let (p, q) = (arms[k + 1].length, arms[(k + 3) % 4].length);
@@ -406,6 +428,11 @@ impl CrosshairDetector {
                     grid_lines_around(img, centre, &dirs, &lengths, bar, strength);
                 if at_end >= 3 || at_end + near_end >= 4 {
                     return Err("grid lines around");
+                }
+                if one_sided_stripe
+                    && board_sides_seen(img, centre, &dirs, &lengths, strength) < BOARD_SIDES_SEEN
+                {
+                    return Err("no board");
                 }
                 let ratio = size / 2.0 / bar;
                 let (lo, hi) = quadrants
@@ -784,7 +811,17 @@ enum ArmEnd {
 /// Feature strength at `t` along arm `a`: for a cross, how much brighter the
 /// bar's centre line is than both sides; for a checker, the edge contrast
 /// with the arm's polarity. Averaged over three points one pixel apart.
-fn feature(img: &GreyView, kind: Kind, c: Pt, a: Pt, t: f64, o: f64, polarity: f64) -> Option<f64> {
+#[allow(clippy::too_many_arguments)]
+fn feature(
+    img: &GreyView,
+    kind: Kind,
+    c: Pt,
+    a: Pt,
+    t: f64,
+    o: f64,
+    polarity: f64,
+    width: f64,
+) -> Option<f64> {
     let n = perp(a);
     let mut sum = 0.0;
     for dt in [-1.0, 0.0, 1.0] {
@@ -795,7 +832,10 @@ fn feature(img: &GreyView, kind: Kind, c: Pt, a: Pt, t: f64, o: f64, polarity: f
         };
         sum += match kind {
             Kind::Cross => {
-                let centre = at(0.0)?;
+                let mut centre = at(0.0)?;
+                if width > 0.0 {
+                    centre = centre.min(at(-width)?).min(at(width)?);
+                }
                 (centre - at(-o)?).min(centre - at(o)?)
             }
             Kind::Checker => polarity * (at(o)? - at(-o)?),
@@ -838,12 +878,27 @@ fn measure_arm(
     let mut below = 0;
     let mut length = None;
     let mut strength = 0.0;
+    // A cross's bar keeps its width: bright a third of the way to either
+    // edge too, so an arm ends where its bar goes on as a narrower stripe
+    // (a road marking under the target, a short stripe across a long one).
+    // The arm's strength stays the plain bar's contrast.
+    let width = if kind == Kind::Cross { 0.3 * bar } else { 0.0 };
+    let (mut near_w, mut strength_w) = (Vec::new(), 0.0);
     while t <= max_reach {
-        let Some(f) = feature(img, kind, c, a, t, o, polarity) else {
+        let Some(f) = feature(img, kind, c, a, t, o, polarity, 0.0) else {
             return ArmEnd::Unknown;
+        };
+        let fw = if width > 0.0 {
+            let Some(fw) = feature(img, kind, c, a, t, o, polarity, width) else {
+                return ArmEnd::Unknown;
+            };
+            fw
+        } else {
+            f
         };
         if t <= reference_end {
             near.push(f);
+            near_w.push(fw);
             if kind == Kind::Checker {
                 if let (Some(l), Some(r)) = (level(t, o), level(t, -o)) {
                     sides.0.push(l);
@@ -856,9 +911,10 @@ fn measure_arm(
                 if strength < 0.7 * MIN_CONTRAST {
                     return ArmEnd::Unknown;
                 }
+                strength_w = pr::quantile(&near_w, 0.5);
             }
             // 0.4: a shadow edge across the arm (x 0.55) is not its end.
-            if f < 0.4 * strength {
+            if fw < 0.4 * strength_w {
                 below += 1;
                 if below == 3 {
                     length = Some(t - 2.0);
@@ -910,7 +966,7 @@ fn measure_arm(
     };
     let mut t = from;
     while t <= to {
-        let Some(f) = feature(img, kind, c, a, t, o, polarity) else {
+        let Some(f) = feature(img, kind, c, a, t, o, polarity, 0.0) else {
             break;
         };
         // A cross's bar continues as a bright bar (a grid line); a checker's
@@ -1320,6 +1376,44 @@ fn grid_lines_around(
     (at_end, near_end)
 }
 
+/// How many of a cross's eight half-sides (each quadrant's two outer sides)
+/// show as an edge between the board and the ground: on at least two of
+/// three profiles across the side, the ground 3 px out differs from the
+/// quadrant 3 px in by a quarter of the bars' contrast.
+fn board_sides_seen(
+    img: &GreyView,
+    c: Pt,
+    dirs: &[Pt; 2],
+    lengths: &[f64; 4],
+    strength: f64,
+) -> usize {
+    let mut seen = 0;
+    for k in 0..4 {
+        let a = arm_dir(dirs, k);
+        for side in [(k + 1) % 4, (k + 3) % 4] {
+            let b = arm_dir(dirs, side);
+            let (la, lb) = (lengths[k], lengths[side]);
+            let edges = [0.45, 0.65, 0.85]
+                .iter()
+                .filter(|&&f| {
+                    let at = |u: f64| {
+                        let p = add(add(c, a, u), b, f * lb);
+                        img.sample(p.0, p.1)
+                    };
+                    match (at(la - 3.0), at(la + 3.0)) {
+                        (Some(inside), Some(outside)) => {
+                            (outside - inside).abs() >= 0.25 * strength
+                        }
+                        _ => false,
+                    }
+                })
+                .count();
+            seen += (edges >= 2) as usize;
+        }
+    }
+    seen
+}
+
 /// A checker's quadrants are uniform out to its edge: on a 3x3 grid across
 /// each quadrant, a sample differs from its mirror image across the
 /// neighbouring arm (in the quadrant of the other colour) the same way as
@@ -1629,6 +1723,51 @@ mod tests {
                 assert_eq!(found.err(), Some("bar widths differ"));
             }
         }
+    }
+
+    /// A cross (100 px, bars 16 px) on ground of grey `ground`, with a
+    /// white stripe `stripe` px wide along its x bar from x = 80 (30 px past
+    /// the board) to `to`.
+    fn cross_on_stripe(stripe: f64, to: f64, ground: f64) -> Vec<u8> {
+        let cross = Cross {
+            centre: (160.0, 160.0),
+            side: 100.0,
+            bar: 16.0,
+            white: 220.0,
+            black: 30.0,
+        };
+        let lay = |x: f64, y: f64| {
+            if (y - 160.0).abs() < stripe / 2.0 && (80.0..to).contains(&x) {
+                220.0
+            } else {
+                ground
+            }
+        };
+        cross.render(320, lay, (1.0, 0.0), -1000.0, 1.0)
+    }
+
+    #[test]
+    fn a_narrower_stripe_past_a_bar_does_not_lengthen_its_arm() {
+        // A 6 px stripe 30 px on from one bar: the plain bar walk follows it
+        // and the arms differ (80 against 50 px); a bar keeps its width, so
+        // the arm ends at the board.
+        let f = analyse_image(&cross_on_stripe(6.0, 160.0, 120.0), 320, 100.0).expect("the cross");
+        assert_centre(&f, (160.0, 160.0));
+        assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
+    }
+
+    #[test]
+    fn a_cross_on_a_stripe_that_stops_short_needs_its_board_to_show() {
+        // A stripe as wide as the bars, on to the frame's edge on the right:
+        // that arm runs on, the opposite one ends 30 px past the board. On
+        // grey ground the board shows and both arms are taken from those
+        // across; on ground as dark as the board it is two road markings
+        // crossing.
+        let f = analyse_image(&cross_on_stripe(16.0, 320.0, 120.0), 320, 100.0).expect("the cross");
+        assert_centre(&f, (160.0, 160.0));
+        assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
+        let markings = analyse_image(&cross_on_stripe(16.0, 320.0, 30.0), 320, 100.0);
+        assert_eq!(markings.err(), Some("no board"));
     }
 
     #[test]

@@ -156,15 +156,17 @@ fn main() {
             let spec = &scene.printed[t.id as usize];
             match hit {
                 Some(d) => {
-                    if std::env::var("RMS").is_ok() {
-                        eprintln!(
-                            "HIT rms {:.3} conf {:.2}",
-                            d.detection.fit_rms_px.unwrap_or(0.0),
-                            d.detection.confidence
-                        );
-                    }
                     let c = d.detection.center;
                     let e = (c.0 - t.center.0).hypot(c.1 - t.center.1);
+                    if std::env::var("RMS").is_ok() {
+                        eprintln!(
+                            "HIT rms {:.3} conf {:.2} size {:.0} err {e:.3} {:?}",
+                            d.detection.fit_rms_px.unwrap_or(0.0),
+                            d.detection.confidence,
+                            d.detection.size_px,
+                            spec.design
+                        );
+                    }
                     errors[(t.id % 2) as usize].push(e);
                     if e > 0.3 {
                         eprintln!(

@@ -8,9 +8,10 @@
 //! 2. A ring of samples at two radii classifies the candidate: four narrow
 //!    bright arcs (cross bars) or four alternating quadrants (checker), and
 //!    gives the four arm directions.
-//! 3. Each arm is measured outward until its structure ends; a structure that
-//!    runs on (panel grids, paving, road markings) is rejected, except one
-//!    arm meeting an object, or a cross lying on a stripe.
+//! 3. Each arm is measured outward until its structure ends (a cross's bar
+//!    where it stops keeping its width); a structure that runs on (panel
+//!    grids, paving, road markings) is rejected, except one arm meeting an
+//!    object, or a cross lying on a stripe.
 //! 4. Subpixel centre: the two cross bars' centre lines (midpoints of both
 //!    bar edges on profiles across the bar, every half pixel along both arms
 //!    of each bar) or the checker's two quadrant boundaries (edge crossings

@@ -812,37 +812,41 @@ enum ArmEnd {
 /// Feature strength at `t` along arm `a`: for a cross, how much brighter the
 /// bar's centre line is than both sides; for a checker, the edge contrast
 /// with the arm's polarity. Averaged over three points one pixel apart.
-#[allow(clippy::too_many_arguments)]
+/// Second, for a cross, the same with the bar's brightness taken as the
+/// least of its centre line and `width` either side of it (a bar keeps its
+/// width; a narrower stripe does not); the first again for a checker.
 fn feature(
     img: &GreyView,
     kind: Kind,
-    c: Pt,
-    a: Pt,
+    (c, a): (Pt, Pt),
     t: f64,
     o: f64,
     polarity: f64,
     width: f64,
-) -> Option<f64> {
+) -> Option<(f64, f64)> {
     let n = perp(a);
-    let mut sum = 0.0;
+    let (mut sum, mut narrow) = (0.0, 0.0);
     for dt in [-1.0, 0.0, 1.0] {
         let base = add(c, a, t + dt);
         let at = |s: f64| {
             let p = add(base, n, s);
             img.sample(p.0, p.1)
         };
-        sum += match kind {
+        match kind {
             Kind::Cross => {
-                let mut centre = at(0.0)?;
-                if width > 0.0 {
-                    centre = centre.min(at(-width)?).min(at(width)?);
-                }
-                (centre - at(-o)?).min(centre - at(o)?)
+                let centre = at(0.0)?;
+                let side = at(-o)?.max(at(o)?);
+                sum += centre - side;
+                narrow += centre.min(at(-width)?).min(at(width)?) - side;
             }
-            Kind::Checker => polarity * (at(o)? - at(-o)?),
-        };
+            Kind::Checker => {
+                let f = polarity * (at(o)? - at(-o)?);
+                sum += f;
+                narrow += f;
+            }
+        }
     }
-    Some(sum / 3.0)
+    Some((sum / 3.0, narrow / 3.0))
 }
 
 /// Walks arm `a` outward: where its structure fades, and whether anything
@@ -883,19 +887,11 @@ fn measure_arm(
     // edge too, so an arm ends where its bar goes on as a narrower stripe
     // (a road marking under the target, a short stripe across a long one).
     // The arm's strength stays the plain bar's contrast.
-    let width = if kind == Kind::Cross { 0.3 * bar } else { 0.0 };
+    let width = 0.3 * bar;
     let (mut near_w, mut strength_w) = (Vec::new(), 0.0);
     while t <= max_reach {
-        let Some(f) = feature(img, kind, c, a, t, o, polarity, 0.0) else {
+        let Some((f, fw)) = feature(img, kind, (c, a), t, o, polarity, width) else {
             return ArmEnd::Unknown;
-        };
-        let fw = if width > 0.0 {
-            let Some(fw) = feature(img, kind, c, a, t, o, polarity, width) else {
-                return ArmEnd::Unknown;
-            };
-            fw
-        } else {
-            f
         };
         if t <= reference_end {
             near.push(f);
@@ -967,7 +963,7 @@ fn measure_arm(
     };
     let mut t = from;
     while t <= to {
-        let Some(f) = feature(img, kind, c, a, t, o, polarity, 0.0) else {
+        let Some((f, _)) = feature(img, kind, (c, a), t, o, polarity, 0.0) else {
             break;
         };
         // A cross's bar continues as a bright bar (a grid line); a checker's

@@ -339,13 +339,9 @@ impl CrosshairDetector {
         let mut one_sided_stripe = false;
         if kind == Kind::Cross && runs_on.len() == 1 {
             let k = runs_on[0].0;
-            let (p, q) = (arms[(k + 1) % 4].length, arms[(k + 3) % 4].length);
-            let (short_lo, short_hi) = (p.min(q), p.max(q));
-            if short_hi / short_lo <= MAX_ARM_RATIO
-                && arms[(k + 2) % 4].length > MAX_ARM_RATIO * short_hi
-            {
+            if let Some(l) = across_if_longer(&arms, k, arms[(k + 2) % 4].length) {
                 for j in [k, (k + 2) % 4] {
-                    arms[j].length = (p + q) / 2.0;
+                    arms[j].length = l;
                 }
                 under_stripe = 1;
                 one_sided_stripe = true;
@@ -353,12 +349,10 @@ impl CrosshairDetector {
         }
         if kind == Kind::Cross && runs_on.is_empty() {
             for k in 0..2 {
-                let (p, q) = (arms[k + 1].length, arms[(k + 3) % 4].length);
-                let (short_lo, short_hi) = (p.min(q), p.max(q));
                 let long_lo = arms[k].length.min(arms[k + 2].length);
-                if short_hi / short_lo <= MAX_ARM_RATIO && long_lo > MAX_ARM_RATIO * short_hi {
+                if let Some(l) = across_if_longer(&arms, k, long_lo) {
                     for j in [k, k + 2] {
-                        arms[j].length = (p + q) / 2.0;
+                        arms[j].length = l;
                     }
                     under_stripe = 2;
                     break;
@@ -777,6 +771,35 @@ fn arm_dir(dirs: &[Pt; 2], k: usize) -> Pt {
     }
 }
 
+/// The mean length of the two arms across arm k (k+1 and k+3), when they
+/// agree within [`MAX_ARM_RATIO`] and `long` exceeds both by more than it:
+/// arm k's bar lies on a stripe, and its length is the board's, as across.
+fn across_if_longer(arms: &[Arm; 4], k: usize, long: f64) -> Option<f64> {
+    let (p, q) = (arms[(k + 1) % 4].length, arms[(k + 3) % 4].length);
+    let (lo, hi) = (p.min(q), p.max(q));
+    (hi / lo <= MAX_ARM_RATIO && long > MAX_ARM_RATIO * hi).then_some((p + q) / 2.0)
+}
+
+/// The eight half-sides of a target's square, each quadrant's two outer
+/// sides: per arm k and each neighbouring arm, arm k's direction and length
+/// (the side lies that far out along it) and the neighbour's direction and
+/// length (how far the side runs).
+fn half_sides<'a>(
+    dirs: &'a [Pt; 2],
+    lengths: &'a [f64; 4],
+) -> impl Iterator<Item = (Pt, f64, Pt, f64)> + 'a {
+    (0..4).flat_map(move |k| {
+        [(k + 1) % 4, (k + 3) % 4].map(|side| {
+            (
+                arm_dir(dirs, k),
+                lengths[k],
+                arm_dir(dirs, side),
+                lengths[side],
+            )
+        })
+    })
+}
+
 /// +1 when the left (+normal) side of a checker arm is the light quadrant.
 fn checker_polarity(img: &GreyView, c: Pt, a: Pt, t: f64) -> Option<f64> {
     let n = perp(a);
@@ -837,7 +860,11 @@ fn feature(
                 let centre = at(0.0)?;
                 let side = at(-o)?.max(at(o)?);
                 sum += centre - side;
-                narrow += centre.min(at(-width)?).min(at(width)?) - side;
+                narrow += if width > 0.0 {
+                    centre.min(at(-width)?).min(at(width)?) - side
+                } else {
+                    centre - side
+                };
             }
             Kind::Checker => {
                 let f = polarity * (at(o)? - at(-o)?);
@@ -1316,58 +1343,53 @@ fn grid_lines_around(
 ) -> (usize, usize) {
     let o = (0.5 * bar).max(2.5);
     let (mut at_end, mut near_end) = (0, 0);
-    for k in 0..4 {
-        let a = arm_dir(dirs, k);
-        // The two quadrants beside arm k's end: towards arm k+1 and k-1.
-        for side in [(k + 1) % 4, (k + 3) % 4] {
-            let b = arm_dir(dirs, side);
-            let (la, lb) = (lengths[k], lengths[side]);
-            let (mut bright, mut total) = (0, 0);
-            // Where a line peaks near the arm's end, on each profile.
-            let mut peaks = Vec::new();
-            for f in [0.3, 0.45, 0.6, 0.75, 0.9] {
-                let v = bar / 2.0 + f * (lb - bar / 2.0);
-                let at = |u: f64| {
-                    let p = add(add(c, a, u), b, v);
-                    img.sample(p.0, p.1)
-                };
-                let ridge = |line: f64| -> Option<f64> {
-                    let (mid, inside, outside) = (
-                        at(line)?,
-                        at(line - bar / 2.0 - o)?,
-                        at(line + bar / 2.0 + o)?,
-                    );
-                    Some(mid - inside.max(outside))
-                };
-                let centre = la + bar / 2.0;
-                if let Some(here) = ridge(centre) {
-                    total += 1;
-                    bright += (here >= 0.25 * strength) as usize;
-                }
-                let steps = (2.0 * bar).ceil() as i32;
-                let best = (-steps..=steps)
-                    .filter_map(|j| {
-                        let u = centre + 0.5 * j as f64;
-                        ridge(u).map(|r| (u, r))
-                    })
-                    .max_by(|x, y| x.1.total_cmp(&y.1));
-                if let Some((u, r)) = best {
-                    if r >= 0.25 * strength {
-                        peaks.push(u);
-                    }
+    // The two quadrants beside each arm's end: towards arm k+1 and k-1.
+    for (a, la, b, lb) in half_sides(dirs, lengths) {
+        let (mut bright, mut total) = (0, 0);
+        // Where a line peaks near the arm's end, on each profile.
+        let mut peaks = Vec::new();
+        for f in [0.3, 0.45, 0.6, 0.75, 0.9] {
+            let v = bar / 2.0 + f * (lb - bar / 2.0);
+            let at = |u: f64| {
+                let p = add(add(c, a, u), b, v);
+                img.sample(p.0, p.1)
+            };
+            let ridge = |line: f64| -> Option<f64> {
+                let (mid, inside, outside) = (
+                    at(line)?,
+                    at(line - bar / 2.0 - o)?,
+                    at(line + bar / 2.0 + o)?,
+                );
+                Some(mid - inside.max(outside))
+            };
+            let centre = la + bar / 2.0;
+            if let Some(here) = ridge(centre) {
+                total += 1;
+                bright += (here >= 0.25 * strength) as usize;
+            }
+            let steps = (2.0 * bar).ceil() as i32;
+            let best = (-steps..=steps)
+                .filter_map(|j| {
+                    let u = centre + 0.5 * j as f64;
+                    ridge(u).map(|r| (u, r))
+                })
+                .max_by(|x, y| x.1.total_cmp(&y.1));
+            if let Some((u, r)) = best {
+                if r >= 0.25 * strength {
+                    peaks.push(u);
                 }
             }
-            // ... on four profiles of five, in a straight row (ground's
-            // texture has ridges too, scattered).
-            let (lo, hi) = peaks
-                .iter()
-                .fold((f64::MAX, f64::MIN), |(l, h), &u| (l.min(u), h.max(u)));
-            let in_row = peaks.len() >= 4 && hi - lo <= (0.2 * bar).max(1.5);
-            if total == 5 && bright >= 3 {
-                at_end += 1;
-            } else if total == 5 && in_row {
-                near_end += 1;
-            }
+        }
+        // ... on four profiles of five, in a straight row (ground's
+        // texture has ridges too, scattered).
+        let (lo, hi) = peaks
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), &u| (l.min(u), h.max(u)));
+        let in_row = peaks.len() >= 4 && hi - lo <= (0.2 * bar).max(1.5);
+        if total == 5 && bright >= 3 {
+            at_end += 1;
+        } else if total == 5 && in_row {
+            near_end += 1;
         }
     }
     (at_end, near_end)
@@ -1385,28 +1407,21 @@ fn board_sides_seen(
     strength: f64,
 ) -> usize {
     let mut seen = 0;
-    for k in 0..4 {
-        let a = arm_dir(dirs, k);
-        for side in [(k + 1) % 4, (k + 3) % 4] {
-            let b = arm_dir(dirs, side);
-            let (la, lb) = (lengths[k], lengths[side]);
-            let edges = [0.45, 0.65, 0.85]
-                .iter()
-                .filter(|&&f| {
-                    let at = |u: f64| {
-                        let p = add(add(c, a, u), b, f * lb);
-                        img.sample(p.0, p.1)
-                    };
-                    match (at(la - 3.0), at(la + 3.0)) {
-                        (Some(inside), Some(outside)) => {
-                            (outside - inside).abs() >= 0.25 * strength
-                        }
-                        _ => false,
-                    }
-                })
-                .count();
-            seen += (edges >= 2) as usize;
-        }
+    for (a, la, b, lb) in half_sides(dirs, lengths) {
+        let edges = [0.45, 0.65, 0.85]
+            .iter()
+            .filter(|&&f| {
+                let at = |u: f64| {
+                    let p = add(add(c, a, u), b, f * lb);
+                    img.sample(p.0, p.1)
+                };
+                match (at(la - 3.0), at(la + 3.0)) {
+                    (Some(inside), Some(outside)) => (outside - inside).abs() >= 0.25 * strength,
+                    _ => false,
+                }
+            })
+            .count();
+        seen += (edges >= 2) as usize;
     }
     seen
 }

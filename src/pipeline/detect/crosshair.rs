@@ -99,6 +99,12 @@ const SHADOW_COPY: f64 = 1.3;
 /// Half-sides of a cross's board that must show against the ground when one
 /// bar runs on along a stripe and the opposite one ends far out.
 const BOARD_SIDES_SEEN: usize = 4;
+/// A cross lying on a stripe (two opposite bars run on) whose board does not
+/// show against the ground: the two arms across the stripe must agree this
+/// closely, as mild perspective leaves them (~10%). A road marking crossing
+/// a longer one ends wherever it meets something, one side often a quarter
+/// shorter than the other.
+const UNSEEN_BOARD_ARM_RATIO: f64 = 1.15;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Kind {
@@ -424,7 +430,14 @@ impl CrosshairDetector {
                 if at_end >= 3 || at_end + near_end >= 4 {
                     return Err("grid lines around");
                 }
-                if one_sided_stripe
+                // Two road markings crossing look like a cross on a stripe
+                // whose board matches the ground, unless the shorter one's
+                // ends are unequal.
+                let uneven_stripe = stripe && {
+                    let (lo, hi) = across(&lengths, runs_on[0].0);
+                    hi / lo > UNSEEN_BOARD_ARM_RATIO
+                };
+                if (one_sided_stripe || uneven_stripe)
                     && board_sides_seen(img, centre, &dirs, &lengths, strength) < BOARD_SIDES_SEEN
                 {
                     return Err("no board");
@@ -771,13 +784,18 @@ fn arm_dir(dirs: &[Pt; 2], k: usize) -> Pt {
     }
 }
 
-/// The mean length of the two arms across arm k (k+1 and k+3), when they
-/// agree within [`MAX_ARM_RATIO`] and `long` exceeds both by more than it:
-/// arm k's bar lies on a stripe, and its length is the board's, as across.
+/// The shorter and the longer of the two arms across arm k (k+1 and k+3).
+fn across(lengths: &[f64; 4], k: usize) -> (f64, f64) {
+    let (p, q) = (lengths[(k + 1) % 4], lengths[(k + 3) % 4]);
+    (p.min(q), p.max(q))
+}
+
+/// The mean length of the two arms across arm k, when they agree within
+/// [`MAX_ARM_RATIO`] and `long` exceeds both by more than it: arm k's bar
+/// lies on a stripe, and its length is the board's, as across.
 fn across_if_longer(arms: &[Arm; 4], k: usize, long: f64) -> Option<f64> {
-    let (p, q) = (arms[(k + 1) % 4].length, arms[(k + 3) % 4].length);
-    let (lo, hi) = (p.min(q), p.max(q));
-    (hi / lo <= MAX_ARM_RATIO && long > MAX_ARM_RATIO * hi).then_some((p + q) / 2.0)
+    let (lo, hi) = across(&arms.map(|a| a.length), k);
+    (hi / lo <= MAX_ARM_RATIO && long > MAX_ARM_RATIO * hi).then_some((lo + hi) / 2.0)
 }
 
 /// The eight half-sides of a target's square, each quadrant's two outer
@@ -1733,6 +1751,31 @@ mod tests {
                 assert_centre(&f, (160.0, 160.0));
             } else {
                 assert_eq!(found.err(), Some("bar widths differ"));
+            }
+        }
+    }
+
+    #[test]
+    fn road_markings_crossing_with_unequal_ends_are_not_a_cross() {
+        // Both 16 px wide, the shorter marking running 80 px to one side and
+        // 100 px to the other (it ends where it meets something): within
+        // the arm ratio, yet no board shows and the ends are unequal. Ends
+        // at 80 and 88 px stay a cross lying on a stripe.
+        for (end, cross) in [(100.0, false), (88.0, true)] {
+            let data = render_image(320, |x, y| {
+                let (dx, dy) = (x - 160.0, y - 160.0);
+                let on = dy.abs() < 8.0 || (dx.abs() < 8.0 && (-80.0..end).contains(&dy));
+                if on {
+                    230.0
+                } else {
+                    30.0
+                }
+            });
+            let found = analyse_image(&data, 320, 180.0);
+            if cross {
+                assert_centre(&found.expect("a cross on a stripe"), (160.0, 160.0));
+            } else {
+                assert_eq!(found.err(), Some("no board"));
             }
         }
     }

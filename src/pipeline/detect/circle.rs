@@ -56,6 +56,13 @@ const MAX_SIDE_RATIO: f64 = 1.15;
 /// fraction of its half side (plus a pixel): pixel-level side lines place
 /// its centre to ~1 px; a tank off a flat roof's centre is off by 15%+.
 const MAX_CENTRE_OFFSET: f64 = 0.06;
+/// The centres placed by each pair of a board's sides agree within this
+/// fraction of the disc's radius (at least the pixels below). Measured on
+/// true discs: pairs of adjacent sides scatter up to 0.03 of the radius
+/// (0.9 px on a 53 px radius); a side found on clutter moved them by 0.1 of
+/// it and more (2.5 px on 26 px, 6 px on 42 px).
+const MAX_PAIR_SPREAD: f64 = 0.05;
+const MAX_PAIR_SPREAD_PX: f64 = 0.5;
 /// Largest turn of a board's side off the square's normal (degrees): mild
 /// perspective turns opposite sides by a few degrees each.
 const MAX_SIDE_TILT_DEG: i32 = 6;
@@ -544,6 +551,50 @@ fn board_sides(
 /// with one pair of opposite sides, [`centre_between`]; with two adjacent
 /// ones, [`centre_beside`]. All are exact under perspective.
 fn perspective_centre(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> {
+    // Each pair of sides places the centre on its own; a side found on
+    // something lying against the board moves every pair it is in. When the
+    // pairs disagree, the sides without one of the four if they agree, or
+    // else no correction (the ellipse's own bias is about a pixel at most).
+    let tolerance = MAX_PAIR_SPREAD_PX.max(MAX_PAIR_SPREAD * e.radius());
+    if pair_spread(e, sides) <= tolerance {
+        return centre_from_sides(e, sides);
+    }
+    if sides.iter().all(Option::is_some) {
+        let without = |k: usize| {
+            let mut fewer = *sides;
+            fewer[k] = None;
+            fewer
+        };
+        let best = (0..4)
+            .map(|k| (pair_spread(e, &without(k)), k))
+            .min_by(|a, b| a.0.total_cmp(&b.0))?;
+        if best.0 <= tolerance {
+            return centre_from_sides(e, &without(best.1));
+        }
+    }
+    None
+}
+
+/// The largest distance between the centres placed by two pairs of sides
+/// (adjacent or opposite); 0 with one pair or none.
+fn pair_spread(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> f64 {
+    let mut estimates = Vec::new();
+    for k in 0..4 {
+        if let (Some(a), Some(b)) = (&sides[k], &sides[(k + 1) % 4]) {
+            estimates.extend(centre_beside(e, a, b));
+        }
+        if let (Some(a), Some(b), true) = (&sides[k], &sides[(k + 2) % 4], k < 2) {
+            estimates.extend(centre_between(e, a, b));
+        }
+    }
+    estimates
+        .iter()
+        .flat_map(|p| estimates.iter().map(|q| geometry::dist(*p, *q)))
+        .fold(0.0, f64::max)
+}
+
+/// The disc's centre from the sides given (see [`perspective_centre`]).
+fn centre_from_sides(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> {
     match sides {
         [Some(a), Some(b), Some(c), Some(d)] => pole(e, &cross3(cross3(*a, *c), cross3(*b, *d))),
         [Some(a), _, Some(c), _] | [_, Some(a), _, Some(c)] => centre_between(e, a, c),
@@ -1403,6 +1454,25 @@ mod tests {
         let c = perspective_centre(&disc, &[off, sides[1], None, None]);
         assert!(c.is_none_or(|c| geometry::dist(c, truth) > 0.5), "{c:?}");
         assert!(perspective_centre(&disc, &[sides[0], None, None, None]).is_none());
+    }
+
+    #[test]
+    fn a_side_found_on_clutter_is_left_out_or_no_correction_is_made() {
+        let (h, disc, truth) = disc_in_strong_perspective();
+        let sides = BOARD_SIDES.map(|(p, q)| Some(side_line(&h, &disc, p, q)));
+        // The top side found on the edge of something lying against the
+        // board, turned against it: it moves the pole by 3 px (the radius is 60).
+        let mut clutter = sides;
+        clutter[1] = Some(side_line(&h, &disc, (0.0, 0.0), (1.0, 0.2)));
+        let moved = centre_from_sides(&disc, &clutter).expect("centre");
+        assert!(geometry::dist(moved, truth) > 2.5, "{moved:?} vs {truth:?}");
+        // The other three agree: the centre from them.
+        let c = perspective_centre(&disc, &clutter).expect("centre");
+        assert!(geometry::dist(c, truth) < 0.02, "{c:?} vs {truth:?}");
+        // With three sides seen, one of them wrong, nothing tells which: no
+        // correction (the ellipse's own centre is used).
+        clutter[3] = None;
+        assert_eq!(perspective_centre(&disc, &clutter), None);
     }
 
     /// A white disc (radius 20) on a black board (half side 40, turned 20

@@ -42,6 +42,8 @@ pub fn generate(dir: &Path, spec: &FlightSpec) {
 /// KiB (from wait4's rusage).
 pub fn run_detect(dir: &Path, out: &Path, extra: &[&str]) -> (f64, i64) {
     let start = Instant::now();
+    // Reaped by wait4 below (which also gives the peak RSS), not wait().
+    #[allow(clippy::zombie_processes)]
     let child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
         .arg("detect")
         .arg(dir)

@@ -226,13 +226,16 @@ fn survey_text(survey: &str) -> HashMap<String, (String, String, String, String)
         .collect()
 }
 
+/// One observation of a point in gcp_list.txt: image name, pixel x, y.
+type Observation = (String, f64, f64);
+
 /// An OpenDroneMap gcp_list.txt reader: the CRS line, then points and
 /// their observations; fails on anything ODM would misread.
-fn read_gcp_list(text: &str) -> (String, HashMap<String, Vec<(String, f64, f64)>>) {
+fn read_gcp_list(text: &str) -> (String, HashMap<String, Vec<Observation>>) {
     let mut lines = text.lines();
     let crs = lines.next().expect("a CRS line").to_string();
     let mut coords: HashMap<String, String> = HashMap::new();
-    let mut obs: HashMap<String, Vec<(String, f64, f64)>> = HashMap::new();
+    let mut obs: HashMap<String, Vec<Observation>> = HashMap::new();
     for line in lines {
         let f: Vec<&str> = line.split_whitespace().collect();
         assert_eq!(f.len(), 7, "{line}");

@@ -505,7 +505,7 @@ fn metrics_events_and_request_ids() {
     let last_data = text
         .lines()
         .filter_map(|l| l.strip_prefix("data: "))
-        .last()
+        .next_back()
         .unwrap();
     let last: Value = serde_json::from_str(last_data).unwrap();
     assert_eq!(last["state"], "succeeded");

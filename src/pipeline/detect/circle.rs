@@ -1023,7 +1023,7 @@ impl Levels<'_> {
                 let x = pr::crossing(&c.values, mid, ground > c.level, j as f64)?;
                 let edge = h_lo + x;
                 ((edge - h).abs() <= w as f64)
-                    .then(|| (n.0 * edge + t.0 * c.u, n.1 * edge + t.1 * c.u))
+                    .then_some((n.0 * edge + t.0 * c.u, n.1 * edge + t.1 * c.u))
             })
             .collect();
         if (points.len() as f64) < MIN_SIDE_SUPPORT * columns.len() as f64 {

@@ -554,43 +554,54 @@ fn perspective_centre(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> 
     // Each pair of sides places the centre on its own; a side found on
     // something lying against the board moves every pair it is in. When the
     // pairs disagree, the sides without one of the four if they agree, or
-    // else no correction (the ellipse's own bias is about a pixel at most).
+    // else no correction (the ellipse's own centre, biased by up to ~2 px
+    // under the mild perspective measured).
     let tolerance = MAX_PAIR_SPREAD_PX.max(MAX_PAIR_SPREAD * e.radius());
-    if pair_spread(e, sides) <= tolerance {
+    let centres = pair_centres(e, sides);
+    // Largest distance between two pairs' centres, leaving out those that
+    // use side `skip`.
+    let spread = |skip: Option<usize>| {
+        let kept: Vec<Pt> = centres
+            .iter()
+            .filter(|(used, _)| skip.is_none_or(|k| used & (1 << k) == 0))
+            .map(|c| c.1)
+            .collect();
+        kept.iter()
+            .flat_map(|p| kept.iter().map(|q| geometry::dist(*p, *q)))
+            .fold(0.0, f64::max)
+    };
+    if spread(None) <= tolerance {
         return centre_from_sides(e, sides);
     }
     if sides.iter().all(Option::is_some) {
-        let without = |k: usize| {
+        let (least, k) = (0..4)
+            .map(|k| (spread(Some(k)), k))
+            .min_by(|a, b| a.0.total_cmp(&b.0))?;
+        if least <= tolerance {
             let mut fewer = *sides;
             fewer[k] = None;
-            fewer
-        };
-        let best = (0..4)
-            .map(|k| (pair_spread(e, &without(k)), k))
-            .min_by(|a, b| a.0.total_cmp(&b.0))?;
-        if best.0 <= tolerance {
-            return centre_from_sides(e, &without(best.1));
+            return centre_from_sides(e, &fewer);
         }
     }
     None
 }
 
-/// The largest distance between the centres placed by two pairs of sides
-/// (adjacent or opposite); 0 with one pair or none.
-fn pair_spread(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> f64 {
-    let mut estimates = Vec::new();
+/// The centre placed by each pair of sides seen (adjacent or opposite),
+/// with the pair as a bit mask of side indices.
+fn pair_centres(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Vec<(u8, Pt)> {
+    let mut centres = Vec::new();
     for k in 0..4 {
-        if let (Some(a), Some(b)) = (&sides[k], &sides[(k + 1) % 4]) {
-            estimates.extend(centre_beside(e, a, b));
-        }
-        if let (Some(a), Some(b), true) = (&sides[k], &sides[(k + 2) % 4], k < 2) {
-            estimates.extend(centre_between(e, a, b));
+        let j = (k + 1) % 4;
+        if let (Some(a), Some(b)) = (&sides[k], &sides[j]) {
+            centres.extend(centre_beside(e, a, b).map(|c| (1 << k | 1 << j, c)));
         }
     }
-    estimates
-        .iter()
-        .flat_map(|p| estimates.iter().map(|q| geometry::dist(*p, *q)))
-        .fold(0.0, f64::max)
+    for k in 0..2 {
+        if let (Some(a), Some(b)) = (&sides[k], &sides[k + 2]) {
+            centres.extend(centre_between(e, a, b).map(|c| (1 << k | 1 << (k + 2), c)));
+        }
+    }
+    centres
 }
 
 /// The disc's centre from the sides given (see [`perspective_centre`]).

@@ -1472,7 +1472,7 @@ mod tests {
         let (h, disc, truth) = disc_in_strong_perspective();
         let sides = BOARD_SIDES.map(|(p, q)| Some(side_line(&h, &disc, p, q)));
         // The top side found on the edge of something lying against the
-        // board, turned against it: it moves the pole by 3 px (the radius is 60).
+        // board, turned against it: it moves the pole by 3.0 px (radius 57).
         let mut clutter = sides;
         clutter[1] = Some(side_line(&h, &disc, (0.0, 0.0), (1.0, 0.2)));
         let moved = centre_from_sides(&disc, &clutter).expect("centre");

@@ -1788,7 +1788,7 @@ mod tests {
     fn a_checker_with_wavy_boundaries_is_not_a_printed_one() {
         // A 2x2 checker (100 px) on grey ground whose quadrant boundaries
         // wave across by `amp` px (period 24 px): a printed boundary is
-        // straight; a wave of 0.9 px (fit RMS ~0.6) is a junction of
+        // straight; a wave of 0.9 px (fit RMS 0.58) is a junction of
         // clutter, 0.3 px still a target.
         for (amp, clutter) in [(0.9, true), (0.3, false)] {
             let wave = |t: f64| amp * (t * std::f64::consts::TAU / 24.0).sin();

@@ -4,6 +4,7 @@
 //! Detectors hold OpenCV objects that are Send but not Sync: a worker builds
 //! its own set per frame with [`build_detectors`] (cheap).
 
+mod arcs;
 mod blobs;
 mod circle;
 mod crosshair;

@@ -95,6 +95,17 @@ const NOT_SHADOW: [&str; 3] = ["board not uniform", "no edges", "inner fit"];
 const SHADOW_COPY: f64 = 4.8;
 /// A contour is an ellipse when its area is this close to its fit's.
 const ROUNDNESS: (f64, f64) = (0.85, 1.15);
+/// Towards a board's corners: end points more than 30 degrees off their
+/// side's normal (sine 0.5). A square's sides hold a third of their points
+/// there (rays at even angles, sides reaching 45 degrees); a round board's
+/// ring keeps within [`SQUARE_TOLERANCE`] of one distance only to about 22
+/// degrees, so only clutter beyond it puts points there.
+const CORNER_SINE: f64 = 0.5;
+/// Share of the end points on a board's sides that must lie towards its
+/// corners: 0.25 at least on the true boards of seeds 400-401; 0.11-0.13 on
+/// clutter rings (a black ring around a white disc) whose rays ended on
+/// other clutter here and there, enough to pass the reach test alone.
+const MIN_CORNER_SHARE: f64 = 0.2;
 
 /// An ellipse: centre, semi-axes and the direction of `a`.
 #[derive(Debug, Clone, Copy)]
@@ -825,7 +836,8 @@ struct BoardSquare {
 /// distance with [`MIN_END_AGREEMENT`] of all end points on them. A
 /// round board (a ring around a disc) fails: the agreeing points of a
 /// square reach sqrt 2 farther at its corners than at its sides' middles, a
-/// circle's do not. So does a roof with a tank off its centre: its sides
+/// circle's do not; and a fifth of them at least lie towards the corners
+/// ([`CORNER_SINE`]), which clutter lying about a ring does not give. So does a roof with a tank off its centre: its sides
 /// lie at different distances, its diagonals cross away from the tank.
 fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
     let per_side = n as f64 / 4.0;
@@ -835,7 +847,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         let sides = assign_sides(ends, psi);
         // Sides that hold: their median distance, and how far from the
         // centre their agreeing points lie.
-        let mut held: Vec<(f64, Vec<f64>)> = Vec::new();
+        let mut held: Vec<(f64, Vec<f64>, usize)> = Vec::new();
         let mut lines: [Option<Vec<Pt>>; 4] = Default::default();
         for (k, side) in sides.iter().enumerate() {
             if side.is_empty() {
@@ -881,7 +893,8 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
                 continue;
             }
-            held.push((m, on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect()));
+            let corner = on.iter().filter(|s| s.1 >= CORNER_SINE).count();
+            held.push((m, on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect(), corner));
             // The side's line from points away from the corners, where
             // perspective may put a point on the neighbouring side.
             let middle: Vec<Pt> = on.iter().filter(|s| s.1 < 0.5).map(|s| s.0).collect();
@@ -896,13 +909,20 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
                 best = Some((agree, BoardSquare { half, psi, sides }));
             }
         };
+        // The share of the held sides' points that lie towards the corners.
+        let corners = || {
+            let (near, all) = held
+                .iter()
+                .fold((0, 0), |(c, a), h| (c + h.2, a + h.1.len()));
+            near as f64 / all.max(1) as f64
+        };
         // All four sides seen: at whatever distances perspective gives them,
         // so long as the board's own centre (where its diagonals cross) is
         // the disc's.
         if held.len() == 4 {
             let reach: Vec<f64> = held.iter().flat_map(|h| h.1.iter().copied()).collect();
             let half = held.iter().map(|h| h.0).sum::<f64>() / 4.0;
-            if centred_on_disc(&lines, half) && cornered(&reach) {
+            if centred_on_disc(&lines, half) && cornered(&reach) && corners() >= MIN_CORNER_SHARE {
                 consider(reach.len(), half);
             }
         }
@@ -918,14 +938,18 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
                 .take_while(|h| *h <= MAX_SIDE_RATIO * lo)
                 .collect();
             let half = same.iter().sum::<f64>() / same.len() as f64;
-            let reach: Vec<f64> = sides
+            let on: Vec<&(Pt, f64, f64)> = sides
                 .iter()
                 .flatten()
                 .filter(|s| (s.1 - half).abs() < SQUARE_TOLERANCE * half)
-                .map(|s| s.0 .0.hypot(s.0 .1))
                 .collect();
+            let reach: Vec<f64> = on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect();
+            let near = on.iter().filter(|s| s.2 >= CORNER_SINE).count();
             let agree = reach.len();
-            if agree as f64 >= MIN_END_AGREEMENT * n as f64 && cornered(&reach) {
+            if agree as f64 >= MIN_END_AGREEMENT * n as f64
+                && cornered(&reach)
+                && near as f64 >= MIN_CORNER_SHARE * agree as f64
+            {
                 consider(agree, half);
             }
         }
@@ -1647,5 +1671,36 @@ mod tests {
             "centre {:?}, {error:.2} px off",
             found[0].center
         );
+    }
+
+    /// A white disc (radius 20) in a black ring twice its radius (a round
+    /// board: a tank's rim, a clutter ring) on textured ground, with a dark
+    /// bump on the ring where a square's corner would be: the rays there
+    /// end far enough out for the loose square a ring fits to look cornered.
+    #[test]
+    fn a_disc_on_a_round_board_is_not_a_target() {
+        let (w, c, r) = (220usize, (109.6, 111.2), 20.0);
+        let data = crate::pipeline::detect::test_image::render_image(w, |x, y| {
+            let (dx, dy) = (x - c.0, y - c.1);
+            let d = dx.hypot(dy);
+            let (s, co) = 45f64.to_radians().sin_cos();
+            let bump = (dx - 2.1 * r * co).hypot(dy - 2.1 * r * s) < 0.55 * r;
+            if d < r {
+                210.0
+            } else if d < 2.0 * r || bump {
+                35.0
+            } else {
+                125.0 + 10.0 * (0.23 * x).sin() * (0.17 * y).cos()
+            }
+        });
+        let tile = Mat::from_slice(&data)
+            .and_then(|m| m.reshape(1, w as i32)?.try_clone())
+            .expect("tile");
+        let mut detector = CircleDetector::new(SizeRange {
+            min_px: 30.0,
+            max_px: 200.0,
+        });
+        let found = detector.detect(&tile, (0, 0), [false; 4]).expect("detect");
+        assert_eq!(found, vec![]);
     }
 }

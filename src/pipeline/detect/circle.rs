@@ -1629,6 +1629,19 @@ mod tests {
         }
     }
 
+    /// The circle detector run on a w x w 8-bit image as one tile, sizes
+    /// from `min_px` to 200 px.
+    fn detect_in(data: &[u8], w: usize, min_px: f64) -> Vec<Detection> {
+        let tile = Mat::from_slice(data)
+            .and_then(|m| m.reshape(1, w as i32)?.try_clone())
+            .expect("tile");
+        let mut detector = CircleDetector::new(SizeRange {
+            min_px,
+            max_px: 200.0,
+        });
+        detector.detect(&tile, (0, 0), [false; 4]).expect("detect")
+    }
+
     /// A white disc (radius 34) on a black board turned 30 degrees, printed
     /// at low contrast on textured ground, with a shadow's straight edge
     /// across the disc a third of the way down: the adaptive threshold
@@ -1656,14 +1669,7 @@ mod tests {
                 0.45
             }
         });
-        let tile = Mat::from_slice(&data)
-            .and_then(|m| m.reshape(1, w as i32)?.try_clone())
-            .expect("tile");
-        let mut detector = CircleDetector::new(SizeRange {
-            min_px: 40.0,
-            max_px: 200.0,
-        });
-        let found = detector.detect(&tile, (0, 0), [false; 4]).expect("detect");
+        let found = detect_in(&data, w, 40.0);
         assert_eq!(found.len(), 1, "{found:?}");
         let error = geometry::dist(found[0].center, c);
         assert!(
@@ -1693,14 +1699,6 @@ mod tests {
                 125.0 + 10.0 * (0.23 * x).sin() * (0.17 * y).cos()
             }
         });
-        let tile = Mat::from_slice(&data)
-            .and_then(|m| m.reshape(1, w as i32)?.try_clone())
-            .expect("tile");
-        let mut detector = CircleDetector::new(SizeRange {
-            min_px: 30.0,
-            max_px: 200.0,
-        });
-        let found = detector.detect(&tile, (0, 0), [false; 4]).expect("detect");
-        assert_eq!(found, vec![]);
+        assert_eq!(detect_in(&data, w, 30.0), vec![]);
     }
 }

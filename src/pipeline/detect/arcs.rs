@@ -44,7 +44,8 @@ fn tolerance(r: f64) -> f64 {
 
 /// The circles that long arcs of a closed contour lie on, with radii in
 /// `r_range`: where a contour runs along a circle for 150 degrees or more.
-/// Every arc is reported once, in the order of the contour.
+/// Each circle is reported once (arcs of one circle are [`same`]), in the
+/// order the contour's points first show it.
 pub fn arc_circles(points: &[Pt], r_range: (f64, f64)) -> Vec<Circle> {
     let n = points.len();
     let mut out = Vec::new();
@@ -98,9 +99,9 @@ pub fn arc_circles(points: &[Pt], r_range: (f64, f64)) -> Vec<Circle> {
     out
 }
 
-/// The arc through contour point `mid` on circle `c`, refined twice by a
-/// least-squares fit to its points: its index range (may pass n, to be
-/// taken mod n) and circle, if it is long and dense enough.
+/// The arc through contour point `mid` on circle `c`, walked and refitted
+/// (least squares to its points) three times: its index range (may pass n,
+/// to be taken mod n) and circle, if it is long and dense enough.
 fn arc_from(points: &[Pt], mid: usize, mut c: Circle) -> Option<(std::ops::Range<usize>, Circle)> {
     let mut run = 0..0;
     for _ in 0..3 {

@@ -102,9 +102,10 @@ const ROUNDNESS: (f64, f64) = (0.85, 1.15);
 /// degrees, so only clutter beyond it puts points there.
 const CORNER_SINE: f64 = 0.5;
 /// Share of the end points on a board's sides that must lie towards its
-/// corners: 0.25 at least on the true boards of seeds 400-401; 0.11-0.13 on
-/// clutter rings (a black ring around a white disc) whose rays ended on
-/// other clutter here and there, enough to pass the reach test alone.
+/// corners: 0.25 at least on the boards fitted in seeds 400-401; 0.13 and
+/// 0.16 on two clutter rings (a black ring around a white disc) whose rays
+/// ended on other clutter here and there, enough to pass the reach test
+/// alone.
 const MIN_CORNER_SHARE: f64 = 0.2;
 
 /// An ellipse: centre, semi-axes and the direction of `a`.

@@ -317,7 +317,7 @@ impl Detector for CircleDetector {
         let blobs = blobs::find_blobs(tile, area, &mut self.mask).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
         let mut starts: Vec<Ellipse> = Vec::new();
-        let mut arc_starts: Vec<Ellipse> = Vec::new();
+        let mut arcs_seen: Vec<arcs::Circle> = Vec::new();
         for blob in &blobs {
             if blob.points.len() < 12 {
                 continue;
@@ -332,33 +332,29 @@ impl Detector for CircleDetector {
                     .iter()
                     .map(|p| (p.x as f64, p.y as f64))
                     .collect();
-                for c in arcs::arc_circles(&points, (disc_r_min, r_max)) {
-                    arc_starts.push(Ellipse {
-                        c: c.c,
-                        a: c.r,
-                        b: c.r,
-                        u: (1.0, 0.0),
-                    });
-                }
+                arcs_seen.extend(arcs::arc_circles(&points, (disc_r_min, r_max)));
             }
         }
         // A disc split by a shadow: its pieces' arcs, one start per circle
         // (both pieces give it), none where a round start is already.
-        let mut extra: Vec<Ellipse> = Vec::new();
-        for e in arc_starts {
-            let circle = |e: &Ellipse| arcs::Circle {
+        let mut known: Vec<arcs::Circle> = starts
+            .iter()
+            .map(|e| arcs::Circle {
                 c: e.c,
                 r: e.radius(),
-            };
-            let known = starts
-                .iter()
-                .chain(&extra)
-                .any(|s| arcs::same(&circle(&e), &circle(s)));
-            if !known {
-                extra.push(e);
+            })
+            .collect();
+        for c in arcs_seen {
+            if !known.iter().any(|k| arcs::same(&c, k)) {
+                known.push(c);
+                starts.push(Ellipse {
+                    c: c.c,
+                    a: c.r,
+                    b: c.r,
+                    u: (1.0, 0.0),
+                });
             }
         }
-        starts.extend(extra);
         starts.sort_by(|p, q| {
             (p.c.1, p.c.0, p.a)
                 .partial_cmp(&(q.c.1, q.c.0, q.a))
@@ -838,8 +834,9 @@ struct BoardSquare {
 /// round board (a ring around a disc) fails: the agreeing points of a
 /// square reach sqrt 2 farther at its corners than at its sides' middles, a
 /// circle's do not; and a fifth of them at least lie towards the corners
-/// ([`CORNER_SINE`]), which clutter lying about a ring does not give. So does a roof with a tank off its centre: its sides
-/// lie at different distances, its diagonals cross away from the tank.
+/// ([`CORNER_SINE`]), which clutter lying about a ring does not give. So
+/// does a roof with a tank off its centre: its sides lie at different
+/// distances, its diagonals cross away from the tank.
 fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
     let per_side = n as f64 / 4.0;
     let mut best: Option<(usize, BoardSquare)> = None;
@@ -848,7 +845,7 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         let sides = assign_sides(ends, psi);
         // Sides that hold: their median distance, and how far from the
         // centre their agreeing points lie.
-        let mut held: Vec<(f64, Vec<f64>, usize)> = Vec::new();
+        let mut held: Vec<(f64, Vec<(Pt, f64)>)> = Vec::new();
         let mut lines: [Option<Vec<Pt>>; 4] = Default::default();
         for (k, side) in sides.iter().enumerate() {
             if side.is_empty() {
@@ -894,37 +891,36 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
                 continue;
             }
-            let corner = on.iter().filter(|s| s.1 >= CORNER_SINE).count();
-            held.push((m, on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect(), corner));
             // The side's line from points away from the corners, where
             // perspective may put a point on the neighbouring side.
             let middle: Vec<Pt> = on.iter().filter(|s| s.1 < 0.5).map(|s| s.0).collect();
             lines[k] = (middle.len() >= 4).then_some(middle);
+            held.push((m, on));
         }
         // A round board (a ring around a disc) fits a square loosely too; a
-        // square's corners lie sqrt 2 farther out than its sides' middles.
-        let cornered = |reach: &[f64]| pr::quantile(reach, 0.9) / pr::quantile(reach, 0.1) >= 1.2;
+        // square's corners lie sqrt 2 farther out than its sides' middles,
+        // and a fifth of its points at least lie towards them. Each agreeing
+        // point with the sine of its angle off its side's normal.
+        let cornered = |on: &[(Pt, f64)]| {
+            let reach: Vec<f64> = on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect();
+            let near = on.iter().filter(|s| s.1 >= CORNER_SINE).count();
+            pr::quantile(&reach, 0.9) / pr::quantile(&reach, 0.1) >= 1.2
+                && near as f64 >= MIN_CORNER_SHARE * on.len() as f64
+        };
         let mut consider = |agree: usize, half: f64| {
             if best.as_ref().is_none_or(|b| agree > b.0) {
                 let sides = lines.clone();
                 best = Some((agree, BoardSquare { half, psi, sides }));
             }
         };
-        // The share of the held sides' points that lie towards the corners.
-        let corners = || {
-            let (near, all) = held
-                .iter()
-                .fold((0, 0), |(c, a), h| (c + h.2, a + h.1.len()));
-            near as f64 / all.max(1) as f64
-        };
         // All four sides seen: at whatever distances perspective gives them,
         // so long as the board's own centre (where its diagonals cross) is
         // the disc's.
         if held.len() == 4 {
-            let reach: Vec<f64> = held.iter().flat_map(|h| h.1.iter().copied()).collect();
+            let on: Vec<(Pt, f64)> = held.iter().flat_map(|h| h.1.iter().copied()).collect();
             let half = held.iter().map(|h| h.0).sum::<f64>() / 4.0;
-            if centred_on_disc(&lines, half) && cornered(&reach) && corners() >= MIN_CORNER_SHARE {
-                consider(reach.len(), half);
+            if centred_on_disc(&lines, half) && cornered(&on) {
+                consider(on.len(), half);
             }
         }
         // Or sides at nearly one distance, most of all end points on them:
@@ -939,18 +935,14 @@ fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
                 .take_while(|h| *h <= MAX_SIDE_RATIO * lo)
                 .collect();
             let half = same.iter().sum::<f64>() / same.len() as f64;
-            let on: Vec<&(Pt, f64, f64)> = sides
+            let on: Vec<(Pt, f64)> = sides
                 .iter()
                 .flatten()
                 .filter(|s| (s.1 - half).abs() < SQUARE_TOLERANCE * half)
+                .map(|s| (s.0, s.2))
                 .collect();
-            let reach: Vec<f64> = on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect();
-            let near = on.iter().filter(|s| s.2 >= CORNER_SINE).count();
-            let agree = reach.len();
-            if agree as f64 >= MIN_END_AGREEMENT * n as f64
-                && cornered(&reach)
-                && near as f64 >= MIN_CORNER_SHARE * agree as f64
-            {
+            let agree = on.len();
+            if agree as f64 >= MIN_END_AGREEMENT * n as f64 && cornered(&on) {
                 consider(agree, half);
             }
         }

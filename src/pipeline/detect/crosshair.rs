@@ -68,6 +68,9 @@ const FLIP_RATIO: f64 = 0.5;
 /// make it paving even where the paving is a single tile wide (a strip's
 /// end, paving under other clutter).
 const MIN_LEAD_FLIPS: usize = 4;
+/// Paving's tiles right past a checker arm's end repeat the quadrants'
+/// levels swapped, to this fraction of the quadrants' difference.
+const TILE_LEVEL_TOLERANCE: f64 = 0.3;
 /// Largest RMS distance of edge points from their fitted line: above it the
 /// "lines" are not straight (a fold, an object on the target, clutter).
 /// Measured on 1060 true detections (40-200 px, blur up to 1.4 px, motion
@@ -985,6 +988,22 @@ fn measure_arm(
     // count), for 0.6 of the arm: a repeating pattern continues right after
     // the gap; something else beside the target (a path, a car, a stripe)
     // further out does not make it part of a pattern.
+    // Paving cut short by something lying over it: only the tiles right
+    // past the end may show, inside the gap below.
+    if kind == Kind::Checker
+        && !sides.0.is_empty()
+        && tiles_swap_past_end(
+            img,
+            (c, a),
+            length,
+            o,
+            polarity,
+            strength,
+            (pr::quantile(&sides.0, 0.5), pr::quantile(&sides.1, 0.5)),
+        )
+    {
+        return ArmEnd::Flips;
+    }
     let from = length + (0.3 * length).max(3.0);
     let to = from + (0.6 * length).max(6.0);
     let mut active = 0;
@@ -1063,6 +1082,52 @@ fn measure_arm(
         return ArmEnd::RunsOn(Some(arm));
     }
     ArmEnd::Ends(arm)
+}
+
+/// Whether a checker arm's boundary runs on, right past its end, between
+/// the same two tiles swapped: paving, its continuation perhaps cut short
+/// by something lying over it. Each side must show the level of the
+/// quadrant across the arm (within [`TILE_LEVEL_TOLERANCE`] of the
+/// quadrants' difference) near the line and a third of the arm from it
+/// (a narrow stripe along the line is not a tile), and the edge between
+/// them must lie on the arm's line, for [`MIN_LEAD_FLIPS`] samples in a
+/// row from just past the end. `levels`: the quadrants' levels on the
+/// arm's two sides near the centre.
+fn tiles_swap_past_end(
+    img: &GreyView,
+    (c, a): (Pt, Pt),
+    length: f64,
+    o: f64,
+    polarity: f64,
+    strength: f64,
+    (left, right): (f64, f64),
+) -> bool {
+    let n = perp(a);
+    let level = |t: f64, s: f64| {
+        let p = add(add(c, a, t), n, s);
+        img.sample(p.0, p.1)
+    };
+    let tolerance = TILE_LEVEL_TOLERANCE * (left - right).abs();
+    let swapped = |t: f64, s: f64| match (level(t, s), level(t, -s)) {
+        (Some(l), Some(r)) => (l - right).abs() < tolerance && (r - left).abs() < tolerance,
+        _ => false,
+    };
+    let mut profile = Vec::new();
+    let mut t = length + (0.1 * length).max(2.0);
+    let mut lead = 0;
+    while t <= 1.5 * length && lead < MIN_LEAD_FLIPS {
+        let on_line = swapped(t, o)
+            && swapped(t, 0.3 * length)
+            && pr::line(img, add(c, a, t), n, o, &mut profile).is_some()
+            && edge_offset(&profile, o, -polarity, 0.7 * strength)
+                .is_some_and(|(s, _)| s.abs() <= (0.05 * length).max(1.0));
+        if !on_line {
+            return false;
+        }
+        lead += 1;
+        t += 1.0;
+    }
+    lead >= MIN_LEAD_FLIPS
 }
 
 /// Whether the edge found past an arm's end (its points in `edge`) is a
@@ -1780,6 +1845,38 @@ mod tests {
                 assert_centre(&found.expect("a cross on a stripe"), (160.0, 160.0));
             } else {
                 assert_eq!(found.err(), Some("no board"));
+            }
+        }
+    }
+
+    #[test]
+    fn paving_under_an_object_is_not_a_checker_target() {
+        // A 2x2 checker of 30 px tiles on grey ground, with one more row of
+        // the same tiles past its top edge: paving. A dark object covers
+        // that row from `cover` px above the edge (lying over it). Covered
+        // from 8 px on, only the tiles right past the arm's end show; the
+        // object at the edge itself leaves a target.
+        for (cover, paving) in [(8.0, true), (0.0, false)] {
+            let data = render_image(320, |x, y| {
+                let (dx, dy) = (x - 160.0, y - 160.0);
+                if dx.abs() >= 30.0 || !(-60.0..30.0).contains(&dy) {
+                    return 120.0;
+                }
+                if dy < -30.0 - cover {
+                    return 20.0;
+                }
+                let (i, j) = ((dx / 30.0).floor() as i64, (dy / 30.0).floor() as i64);
+                if (i + j).rem_euclid(2) == 0 {
+                    60.0
+                } else {
+                    200.0
+                }
+            });
+            let found = analyse_image(&data, 320, 60.0);
+            if paving {
+                assert_eq!(found.err(), Some("paving"));
+            } else {
+                assert_centre(&found.expect("a checker target"), (160.0, 160.0));
             }
         }
     }

@@ -983,11 +983,6 @@ fn measure_arm(
         strength,
         polarity,
     };
-    // Beyond the end: ground, not more of the same pattern. From a gap past
-    // the end (a panel grid's cross line or a blurred square edge must not
-    // count), for 0.6 of the arm: a repeating pattern continues right after
-    // the gap; something else beside the target (a path, a car, a stripe)
-    // further out does not make it part of a pattern.
     // Paving cut short by something lying over it: only the tiles right
     // past the end may show, inside the gap below.
     if kind == Kind::Checker
@@ -1004,6 +999,11 @@ fn measure_arm(
     {
         return ArmEnd::Flips;
     }
+    // Beyond the end: ground, not more of the same pattern. From a gap past
+    // the end (a panel grid's cross line or a blurred square edge must not
+    // count), for 0.6 of the arm: a repeating pattern continues right after
+    // the gap; something else beside the target (a path, a car, a stripe)
+    // further out does not make it part of a pattern.
     let from = length + (0.3 * length).max(3.0);
     let to = from + (0.6 * length).max(6.0);
     let mut active = 0;
@@ -1091,8 +1091,8 @@ fn measure_arm(
 /// quadrants' difference) near the line and a third of the arm from it
 /// (a narrow stripe along the line is not a tile), and the edge between
 /// them must lie on the arm's line, for [`MIN_LEAD_FLIPS`] samples in a
-/// row from just past the end. `levels`: the quadrants' levels on the
-/// arm's two sides near the centre.
+/// row from just past the end. `(left, right)`: the quadrants' levels on
+/// the arm's two sides near the centre.
 fn tiles_swap_past_end(
     img: &GreyView,
     (c, a): (Pt, Pt),

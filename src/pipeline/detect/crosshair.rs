@@ -343,7 +343,9 @@ impl CrosshairDetector {
         }
         // A stripe under a cross that ends not far past the board: two
         // opposite bars go on to the stripe's ends, the two across it stop
-        // at the board's edge. Those bars as long as the arms across.
+        // at the board's edge. Those bars as long as the arms across. A
+        // short road marking crossing a longer one looks the same, so the
+        // board must show against the ground (below).
         let mut under_stripe = 0;
         // One bar runs on along a stripe and the opposite one went on along
         // it too, ending where the stripe leaves the bar's line or fades:
@@ -444,7 +446,7 @@ impl CrosshairDetector {
                     let (lo, hi) = across(&lengths, runs_on[0].0);
                     hi / lo > UNSEEN_BOARD_ARM_RATIO
                 };
-                if (one_sided_stripe || uneven_stripe)
+                if (one_sided_stripe || uneven_stripe || under_stripe == 2)
                     && board_sides_seen(img, centre, &dirs, &lengths, strength) < BOARD_SIDES_SEEN
                 {
                     return Err("no board");
@@ -1952,6 +1954,20 @@ mod tests {
         assert_centre(&f, (160.0, 160.0));
         assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
         let markings = analyse_image(&cross_on_stripe(16.0, 320.0, 30.0), 320, 100.0);
+        assert_eq!(markings.err(), Some("no board"));
+    }
+
+    #[test]
+    fn a_cross_on_a_stripe_ending_past_both_sides_needs_its_board_to_show() {
+        // A stripe as wide as the bars under the x bar, 30 px past the
+        // board on both sides: those arms run 80 px against 50 across, and
+        // are taken from those across. On grey ground the board shows; on
+        // ground as dark as the board it is a short road marking crossing a
+        // longer one.
+        let f = analyse_image(&cross_on_stripe(16.0, 240.0, 120.0), 320, 100.0).expect("the cross");
+        assert_centre(&f, (160.0, 160.0));
+        assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
+        let markings = analyse_image(&cross_on_stripe(16.0, 240.0, 30.0), 320, 100.0);
         assert_eq!(markings.err(), Some("no board"));
     }
 

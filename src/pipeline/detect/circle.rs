@@ -52,6 +52,12 @@ const SQUARE_TOLERANCE: f64 = 0.07;
 /// Held sides' distances from the disc's centre may differ this much (mild
 /// perspective); a roof with a tank off its centre differs by 25% and more.
 const MAX_SIDE_RATIO: f64 = 1.15;
+/// A board's width across one pair of sides over the other's, each over
+/// the disc's width the same way, is within this factor of 1 (it is 1 for
+/// a square and its disc in one plane). Measured on the candidates of the
+/// eleven circle sets: 0.964-1.036 (1st-99th percentile); two roofs with a
+/// tank that passed as targets: 1.31 and 1.45.
+const MAX_BOARD_ASPECT: f64 = 1.15;
 /// A board seen on all four sides is centred on its disc within this
 /// fraction of its half side (plus a pixel): pixel-level side lines place
 /// its centre to ~1 px; a tank off a flat roof's centre is off by 15%+.
@@ -136,6 +142,12 @@ impl Ellipse {
         let v = (-self.u.1, self.u.0);
         let (ca, sb) = (self.a * phi.cos(), self.b * phi.sin());
         (ca * self.u.0 + sb * v.0, ca * self.u.1 + sb * v.1)
+    }
+    /// Half the ellipse's width along the unit vector `n`.
+    fn half_width(&self, n: Pt) -> f64 {
+        let v = (-self.u.1, self.u.0);
+        let (p, q) = (n.0 * self.u.0 + n.1 * self.u.1, n.0 * v.0 + n.1 * v.1);
+        (self.a * self.a * p * p + self.b * self.b * q * q).sqrt()
     }
     /// Radial distance (pixels, approximately) of `p` from the ellipse.
     fn distance(&self, p: Pt) -> f64 {
@@ -569,6 +581,11 @@ fn board_sides(
         complete_by_levels(&levels, &mut square);
     }
     let ratio = square.half / e.radius();
+    // A flat roof around a tank is seldom square: the board's sides
+    // must lie as a square's would around this disc.
+    if board_aspect(e, &square).is_some_and(|a| a.max(1.0 / a) > MAX_BOARD_ASPECT) {
+        return Err("board not square");
+    }
     if !(BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio) {
         return Err("board not square");
     }
@@ -585,6 +602,26 @@ fn board_sides(
             .map(|(p, d)| cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]));
     }
     Ok(lines)
+}
+
+/// How much wider the board is across one pair of opposite sides than
+/// across the other, each width over the disc's own width the same way:
+/// a square board and its disc lie in one plane, so (locally) one affine
+/// map takes both and this is 1. None unless all four sides are held.
+fn board_aspect(e: &Ellipse, square: &BoardSquare) -> Option<f64> {
+    let mut spans = [0.0; 2];
+    for (k, span) in spans.iter_mut().enumerate() {
+        let theta = square.psi + k as f64 * std::f64::consts::FRAC_PI_2;
+        let n = (theta.cos(), theta.sin());
+        let along = |side: &Option<Vec<Pt>>, sign: f64| {
+            let points = side.as_ref()?;
+            let sum: f64 = points.iter().map(|p| sign * (p.0 * n.0 + p.1 * n.1)).sum();
+            Some(sum / points.len() as f64)
+        };
+        let width = along(&square.sides[k], 1.0)? + along(&square.sides[k + 2], -1.0)?;
+        *span = width / e.half_width(n);
+    }
+    Some(spans[0] / spans[1])
 }
 
 /// The image of a disc's centre from its board's sides (homogeneous lines
@@ -1693,5 +1730,31 @@ mod tests {
             }
         });
         assert_eq!(detect_in(&data, w, 30.0), vec![]);
+    }
+
+    /// A white disc (radius 20) centred on a black board turned 20 degrees,
+    /// 80 px wide one way and `long` px the other, on textured ground: a
+    /// square board is a target; one 40% longer than wide (a flat roof with
+    /// a tank on it) is not, though its sides lie within the range a board
+    /// may have (1.4 to 3 radii from the disc).
+    #[test]
+    fn a_disc_on_an_oblong_board_is_not_a_target() {
+        for (long, target) in [(80.0, true), (112.0, false)] {
+            let (w, c, r) = (260usize, (129.4, 131.7), 20.0);
+            let (s, co) = 20f64.to_radians().sin_cos();
+            let data = crate::pipeline::detect::test_image::render_image(w, |x, y| {
+                let (dx, dy) = (x - c.0, y - c.1);
+                let (u, v) = (dx * co + dy * s, -dx * s + dy * co);
+                if dx.hypot(dy) < r {
+                    205.0
+                } else if u.abs() < 40.0 && v.abs() < long / 2.0 {
+                    40.0
+                } else {
+                    125.0 + 10.0 * (0.23 * x).sin() * (0.17 * y).cos()
+                }
+            });
+            let found = detect_in(&data, w, 30.0);
+            assert_eq!(found.len(), target as usize, "board {long} px: {found:?}");
+        }
     }
 }

@@ -3,6 +3,10 @@
 //! with its conditions and why the detector rejected the candidates near it.
 //!
 //!     cargo run --release --example printed_misses -- crosshair 300 4
+//!
+//! `EXPECT_PX=60` narrows the size range as a survey's target size and GSD
+//! would (60 px x/÷ 1.5); `RMS=1` prints every hit, `BOARD=1` the board's
+//! sides of imprecise ones.
 
 use std::collections::BTreeMap;
 use std::io::BufRead;
@@ -80,6 +84,12 @@ fn main() {
                     vec![mode]
                 },
                 min_target_px: 40.0,
+                // As a survey narrows it: targets expected at EXPECT_PX px
+                // (a size in metres over a GSD of 1 cm).
+                target_size_m: std::env::var("EXPECT_PX")
+                    .ok()
+                    .map(|px| px.parse::<f64>().unwrap() / 100.0),
+                gsd_cm: Some(1.0),
                 ..DetectorConfig::default()
             },
             tile_size: 2048,

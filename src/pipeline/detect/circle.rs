@@ -1668,6 +1668,7 @@ mod tests {
         let mut detector = CircleDetector::new(SizeRange {
             min_px,
             max_px: 200.0,
+            reach_px: 200.0,
         });
         detector.detect(&tile, (0, 0), [false; 4]).expect("detect")
     }

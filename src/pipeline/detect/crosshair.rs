@@ -292,7 +292,7 @@ impl CrosshairDetector {
         centre = fit.centre;
         dirs = fit.dirs;
         bar = fit.bar.unwrap_or(bar);
-        let max_reach = 0.75 * self.sizes.max_px;
+        let max_reach = 0.75 * self.sizes.reach_px;
         // The arms end: a grid or paving runs on. One arm may meet something
         // lying against the target (a path, an object), and a cross may lie
         // on a stripe (two opposite arms run on); the checks below (grid
@@ -516,7 +516,7 @@ impl CrosshairDetector {
         start: Pt,
         size_guess: f64,
     ) -> Result<Found, &'static str> {
-        let half = (SHADOW_COPY * size_guess).min(0.75 * self.sizes.max_px + size_guess);
+        let half = (SHADOW_COPY * size_guess).min(0.75 * self.sizes.reach_px + size_guess);
         // Reach: half a side, through the target's square near its middle.
         shadow::second_look(
             img,
@@ -1788,6 +1788,17 @@ mod tests {
 
     /// `analyse` on a w x w image, started at its middle.
     fn analyse_image(data: &[u8], w: usize, size_guess: f64) -> Result<Found, &'static str> {
+        analyse_in_range(data, w, size_guess, (30.0, 200.0))
+    }
+
+    /// `analyse_image` with sizes narrowed to `range` (as a target size
+    /// and GSD narrow them), frames searched up to 200 px.
+    fn analyse_in_range(
+        data: &[u8],
+        w: usize,
+        size_guess: f64,
+        range: (f64, f64),
+    ) -> Result<Found, &'static str> {
         let img = GreyView {
             data,
             width: w,
@@ -1795,8 +1806,9 @@ mod tests {
             stride: w,
         };
         let detector = CrosshairDetector::new(SizeRange {
-            min_px: 30.0,
-            max_px: 200.0,
+            min_px: range.0,
+            max_px: range.1,
+            reach_px: 200.0,
         });
         let m = (w / 2) as f64;
         detector.analyse(&img, (m, m), size_guess)
@@ -1848,6 +1860,29 @@ mod tests {
             } else {
                 assert_eq!(found.err(), Some("no board"));
             }
+        }
+    }
+
+    #[test]
+    fn a_narrower_size_range_does_not_excuse_a_long_arm() {
+        // Two road markings 12 px wide crossing on dark ground, three arms
+        // 35 px and one 110 px: the arms differ, whether sizes are searched
+        // up to 200 px or narrowed to 40-90 px by the expected size (the
+        // arm's end then lies past that range's reach, but not past the
+        // frame's).
+        let data = render_image(320, |x, y| {
+            let (dx, dy) = (x - 160.0, y - 160.0);
+            let on = (dy.abs() < 6.0 && dx.abs() < 35.0)
+                || (dx.abs() < 6.0 && (-35.0..110.0).contains(&dy));
+            if on {
+                230.0
+            } else {
+                30.0
+            }
+        });
+        for range in [(30.0, 200.0), (40.0, 90.0)] {
+            let found = analyse_in_range(&data, 320, 70.0, range);
+            assert_eq!(found.err(), Some("arm lengths differ"), "{range:?}");
         }
     }
 
@@ -2098,6 +2133,7 @@ mod tests {
         let detector = CrosshairDetector::new(SizeRange {
             min_px: 30.0,
             max_px: 200.0,
+            reach_px: 200.0,
         });
         fn view(data: &[u8]) -> GreyView<'_> {
             GreyView {

@@ -203,6 +203,11 @@ pub struct DetectorConfig {
 pub struct SizeRange {
     pub min_px: f64,
     pub max_px: f64,
+    /// How far around a candidate its structure is followed (an arm to
+    /// its end): the largest target the frame is searched for, not
+    /// narrowed by the expected size, so a narrower range only rejects
+    /// sizes and never changes what a candidate's surroundings show.
+    pub reach_px: f64,
 }
 
 /// The ground sample distance varies across a frame and a flight (terrain
@@ -221,6 +226,7 @@ impl SizeRange {
         let mut range = SizeRange {
             min_px: config.min_target_px,
             max_px: max_target_px,
+            reach_px: max_target_px,
         };
         let gsd_m = config.gsd_cm.map(|g| g / 100.0).or(frame_gsd_m);
         if let (Some(size), Some(gsd)) = (config.target_size_m, gsd_m) {

@@ -58,6 +58,10 @@ const MAX_SIDE_RATIO: f64 = 1.15;
 /// eleven circle sets: 0.964-1.036 (1st-99th percentile); two roofs with a
 /// tank that passed as targets: 1.31 and 1.45.
 const MAX_BOARD_ASPECT: f64 = 1.15;
+/// A board's side found by levels lies on a line: its points bow from one
+/// by no more than this (pixels). Arcs of a dark ring around a disc, taken
+/// for three sides of a board, bowed 2.2 and 4.6 px.
+const MAX_SIDE_BOW_PX: f64 = 4.0;
 /// A board seen on all four sides is centred on its disc within this
 /// fraction of its half side (plus a pixel): pixel-level side lines place
 /// its centre to ~1 px; a tank off a flat roof's centre is off by 15%+.
@@ -604,6 +608,51 @@ fn board_sides(
     Ok(lines)
 }
 
+/// How far `points` bow away from a straight line through them: the
+/// quadratic of least squares across `line` (a point, the unit direction),
+/// its rise from the middle to the farther end of their span. An arc of
+/// radius R over a span of 2u bows u^2 / 2R.
+fn sagitta(points: &[Pt], (p, d): (Pt, Pt)) -> f64 {
+    // Along and across the line, along centred on the points' mean.
+    let uv: Vec<Pt> = points
+        .iter()
+        .map(|q| {
+            let (x, y) = (q.0 - p.0, q.1 - p.1);
+            (x * d.0 + y * d.1, -x * d.1 + y * d.0)
+        })
+        .collect();
+    let mean = uv.iter().map(|q| q.0).sum::<f64>() / uv.len().max(1) as f64;
+    // Normal equations of v = a + b u + c u^2: sums of u^k (k < 5), v u^k.
+    let (mut s, mut t) = ([0.0f64; 5], [0.0f64; 3]);
+    for &(u, v) in &uv {
+        let u = u - mean;
+        for k in 0..5 {
+            s[k] += u.powi(k as i32);
+            if k < 3 {
+                t[k] += v * u.powi(k as i32);
+            }
+        }
+    }
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let m = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]];
+    let d0 = det(m);
+    if d0.abs() < 1e-12 {
+        return 0.0;
+    }
+    // Cramer's rule for c.
+    let mut mc = m;
+    for (row, tk) in mc.iter_mut().zip(t) {
+        row[2] = tk;
+    }
+    let c = det(mc) / d0;
+    let half = uv.iter().map(|q| (q.0 - mean).abs()).fold(0.0, f64::max);
+    (c * half * half).abs()
+}
+
 /// How much wider the board is across one pair of opposite sides than
 /// across the other, each width over the disc's own width the same way:
 /// a square board and its disc lie in one plane, so (locally) one affine
@@ -1130,6 +1179,10 @@ impl Levels<'_> {
             return None;
         }
         let ((p, d), inliers) = pr::robust_line(&points)?;
+        // A ring's arc is not a board's side.
+        if sagitta(&inliers, (p, d)) > MAX_SIDE_BOW_PX {
+            return None;
+        }
         let mut normal = (-d.1, d.0);
         let mut distance = p.0 * normal.0 + p.1 * normal.1;
         if distance < 0.0 {
@@ -1757,5 +1810,23 @@ mod tests {
             let found = detect_in(&data, w, 30.0);
             assert_eq!(found.len(), target as usize, "board {long} px: {found:?}");
         }
+    }
+
+    /// The white disc in a dark ring that passed in clutter scene 1407: at
+    /// the frame's edge, a dark square lying against the ring. Its board
+    /// by levels had three sides, all arcs of the ring.
+    #[test]
+    fn a_disc_in_a_ring_at_the_frames_edge_is_not_a_target() {
+        let (img, _) =
+            crate::synth::render(&crate::synth::clutter_scene(2400, 1800, 1407)).expect("render");
+        let (w, y0) = (256usize, 1098 - 128);
+        let mut data = vec![0u8; w * w];
+        for y in 0..w {
+            for x in 0..w {
+                let v = img.data[(y0 + y) * img.width + x];
+                data[y * w + x] = (v * 255.0).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        assert_eq!(detect_in(&data, w, 40.0), vec![]);
     }
 }

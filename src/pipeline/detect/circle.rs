@@ -613,7 +613,7 @@ fn board_sides(
 /// its rise from the middle to the farther end of their span. An arc of
 /// radius R over a span of 2u bows u^2 / 2R.
 fn sagitta(points: &[Pt], (p, d): (Pt, Pt)) -> f64 {
-    // Along and across the line, along centred on the points' mean.
+    // Each point: its position along the line, its offset across it.
     let uv: Vec<Pt> = points
         .iter()
         .map(|q| {
@@ -633,22 +633,11 @@ fn sagitta(points: &[Pt], (p, d): (Pt, Pt)) -> f64 {
             }
         }
     }
-    let det = |m: [[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let m = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]];
-    let d0 = det(m);
-    if d0.abs() < 1e-12 {
+    let m = [s[0], s[1], s[2], s[1], s[2], s[3], s[2], s[3], s[4]];
+    let Some(inv) = geometry::invert3(&m) else {
         return 0.0;
-    }
-    // Cramer's rule for c.
-    let mut mc = m;
-    for (row, tk) in mc.iter_mut().zip(t) {
-        row[2] = tk;
-    }
-    let c = det(mc) / d0;
+    };
+    let c = inv[6] * t[0] + inv[7] * t[1] + inv[8] * t[2];
     let half = uv.iter().map(|q| (q.0 - mean).abs()).fold(0.0, f64::max);
     (c * half * half).abs()
 }

@@ -75,6 +75,9 @@ fn main() {
         .with_env_filter("gcp_tagger::pipeline::detect=trace")
         .with_writer(Mutex::new(log))
         .init();
+    let expect_m = std::env::var("EXPECT_PX")
+        .ok()
+        .map(|px| px.parse::<f64>().expect("EXPECT_PX: a number") / 100.0);
     let options = BatchOptions {
         frame: FrameOptions {
             detector: DetectorConfig {
@@ -86,10 +89,8 @@ fn main() {
                 min_target_px: 40.0,
                 // As a survey narrows it: targets expected at EXPECT_PX px
                 // (a size in metres over a GSD of 1 cm).
-                target_size_m: std::env::var("EXPECT_PX")
-                    .ok()
-                    .map(|px| px.parse::<f64>().unwrap() / 100.0),
-                gsd_cm: Some(1.0),
+                target_size_m: expect_m,
+                gsd_cm: expect_m.map(|_| 1.0),
                 ..DetectorConfig::default()
             },
             tile_size: 2048,

@@ -626,11 +626,13 @@ fn sagitta(points: &[Pt], (p, d): (Pt, Pt)) -> f64 {
     let (mut s, mut t) = ([0.0f64; 5], [0.0f64; 3]);
     for &(u, v) in &uv {
         let u = u - mean;
-        for k in 0..5 {
-            s[k] += u.powi(k as i32);
+        let mut power = 1.0;
+        for (k, sk) in s.iter_mut().enumerate() {
+            *sk += power;
             if k < 3 {
-                t[k] += v * u.powi(k as i32);
+                t[k] += v * power;
             }
+            power *= u;
         }
     }
     let m = [s[0], s[1], s[2], s[1], s[2], s[3], s[2], s[3], s[4]];

@@ -6,7 +6,8 @@
 //!
 //! `EXPECT_PX=60` narrows the size range as a survey's target size and GSD
 //! would (60 px x/÷ 1.5); `RMS=1` prints every hit, `BOARD=1` the board's
-//! sides of imprecise ones.
+//! sides of imprecise ones, `ACCEPTED=1` every candidate the detector
+//! accepted (as clutter frames always do).
 
 use std::collections::BTreeMap;
 use std::io::BufRead;
@@ -138,12 +139,14 @@ fn main() {
             "seed {seed}: blur {:.2} motion {:?} noise {:.1}",
             scene.blur_sigma, scene.motion_blur, scene.noise_sigma
         );
-        if clutter {
+        if clutter || std::env::var("ACCEPTED").is_ok() {
             for l in std::fs::read_to_string(&log_path).unwrap().lines() {
                 if l.contains("accepted") {
                     eprintln!("  {l}");
                 }
             }
+        }
+        if clutter {
             for (i, d) in result.targets.iter().enumerate() {
                 let d = &d.detection;
                 eprintln!(

@@ -174,10 +174,11 @@ fn main() {
                     let e = (c.0 - t.center.0).hypot(c.1 - t.center.1);
                     if std::env::var("RMS").is_ok() {
                         eprintln!(
-                            "HIT rms {:.3} conf {:.2} size {:.0} err {e:.3} {:?}",
+                            "HIT rms {:.3} conf {:.2} size {:.1} of {:.1} err {e:.3} {:?}",
                             d.detection.fit_rms_px.unwrap_or(0.0),
                             d.detection.confidence,
                             d.detection.size_px,
+                            spec.size_px,
                             spec.design
                         );
                     }

@@ -318,9 +318,10 @@ impl Detector for CircleDetector {
     ) -> Result<Vec<Detection>, DetectError> {
         let err = DetectError::at(origin);
         // Innermost edges: a bullseye's centre disc is 1/3 of its radius.
-        // Sizes are accepted down to min_px / 1.15 (SizeRange::accepts), and
-        // a thresholded disc's contour runs inside its edge: a 40 px
-        // bullseye's centre disc fell below a bound of min_px / 6.
+        // Candidates are searched down to min_px / 1.15, below the sizes
+        // accepted (SizeRange::accepts), and a thresholded disc's contour
+        // runs inside its edge: a 40 px bullseye's centre disc fell below a
+        // bound of min_px / 6.
         let r_min = (self.sizes.min_px / 1.15 / 6.0).max(2.5);
         let r_max = self.sizes.max_px / 2.0;
         // A disc's own radius (its size is its diameter): the least radius

@@ -437,9 +437,14 @@ impl CrosshairDetector {
                 // a stripe whose board matches the ground, whether its two
                 // ends are equal or not (the held-out clutter set 1500-1515:
                 // 86 and 92 px across a marking cut by another and by a
-                // shadow). A printed bar seldom lies along a stripe of its
-                // own width; when it does, its board must show.
-                if (one_sided_stripe || stripe || under_stripe == 2)
+                // shadow), and whether the marking's other side runs on too
+                // or stops at something lying over it: one bar that never
+                // ends within the reach is a stripe (a printed bar ends at
+                // its board's edge, even where something bright lies past
+                // it). A printed bar seldom lies along a stripe of its own
+                // width; when it does, its board must show.
+                let endless = runs_on.iter().any(|(_, a)| a.is_none());
+                if (one_sided_stripe || stripe || endless || under_stripe == 2)
                     && board_sides_seen(img, centre, &dirs, &lengths, strength) < BOARD_SIDES_SEEN
                 {
                     return Err("no board");
@@ -1999,6 +2004,26 @@ mod tests {
         // ground as dark as the board it is a short road marking crossing a
         // longer one.
         found_on_grey_not_on_dark_ground((80.0, 240.0));
+    }
+
+    #[test]
+    fn a_cross_on_a_stripe_running_on_one_way_needs_its_board_to_show() {
+        // A stripe as wide as the bars from under the board to the frame's
+        // edge: that arm never ends, the opposite one ends at the board. On
+        // ground as dark as the board it is a road marking crossing one
+        // that runs under something lying over it.
+        found_on_grey_not_on_dark_ground((200.0, 320.0));
+    }
+
+    #[test]
+    fn a_bar_that_ends_before_a_stripe_needs_no_board() {
+        // The same stripe from 8 px past the board: the bar ends at the
+        // board's edge and something bright lies past it. Found on ground
+        // as dark as the board.
+        let f = analyse_image(&cross_on_stripe(16.0, (218.0, 320.0), 30.0), 320, 100.0)
+            .expect("the cross");
+        assert_centre(&f, (160.0, 160.0));
+        assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
     }
 
     #[test]

@@ -1969,8 +1969,12 @@ mod tests {
         // A 6 px stripe 30 px on from one bar: the plain bar walk follows it
         // and the arms differ (80 against 50 px); a bar keeps its width, so
         // the arm ends at the board.
-        let f = analyse_image(&cross_on_stripe(6.0, (80.0, 160.0), 120.0), 320, 100.0)
-            .expect("the cross");
+        assert_the_cross(&cross_on_stripe(6.0, (80.0, 160.0), 120.0));
+    }
+
+    /// The cross of [`cross_on_stripe`] is found at its centre and size.
+    fn assert_the_cross(data: &[u8]) {
+        let f = analyse_image(data, 320, 100.0).expect("the cross");
         assert_centre(&f, (160.0, 160.0));
         assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
     }
@@ -1979,9 +1983,7 @@ mod tests {
     /// its centre and size on grey ground, where the board shows; on ground
     /// as dark as the board, "no board".
     fn found_on_grey_not_on_dark_ground(span: (f64, f64)) {
-        let f = analyse_image(&cross_on_stripe(16.0, span, 120.0), 320, 100.0).expect("the cross");
-        assert_centre(&f, (160.0, 160.0));
-        assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
+        assert_the_cross(&cross_on_stripe(16.0, span, 120.0));
         let markings = analyse_image(&cross_on_stripe(16.0, span, 30.0), 320, 100.0);
         assert_eq!(markings.err(), Some("no board"));
     }
@@ -2020,10 +2022,7 @@ mod tests {
         // The same stripe from 8 px past the board: the bar ends at the
         // board's edge and something bright lies past it. Found on ground
         // as dark as the board.
-        let f = analyse_image(&cross_on_stripe(16.0, (218.0, 320.0), 30.0), 320, 100.0)
-            .expect("the cross");
-        assert_centre(&f, (160.0, 160.0));
-        assert!((f.size - 100.0).abs() < 5.0, "{}", f.size);
+        assert_the_cross(&cross_on_stripe(16.0, (218.0, 320.0), 30.0));
     }
 
     #[test]

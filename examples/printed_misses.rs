@@ -131,7 +131,12 @@ fn main() {
                         f["x"].as_f64()?,
                         f["y"].as_f64()?,
                         f["size"].as_f64().unwrap_or(0.0),
-                        f["why"].as_str()?.to_string(),
+                        match f["lifted"].as_str() {
+                            Some(l) if std::env::var("LIFTED").is_ok() => {
+                                format!("{} / lifted: {l}", f["why"].as_str()?)
+                            }
+                            _ => f["why"].as_str()?.to_string(),
+                        },
                     ))
                 })
                 .collect();
@@ -220,6 +225,14 @@ fn main() {
                 }
                 None => {
                     missed += 1;
+                    if std::env::var("MISSCROP").is_ok() {
+                        crop(
+                            &img,
+                            t.center,
+                            (1.5 * t.side_px) as usize,
+                            &format!("miss{seed}_{}", t.id),
+                        );
+                    }
                     let mut why: BTreeMap<String, usize> = BTreeMap::new();
                     let mut each = Vec::new();
                     for (x, y, size, w) in &reasons {

@@ -215,14 +215,13 @@ pub struct SizeRange {
 pub const GSD_SIZE_TOLERANCE: f64 = 1.5;
 
 /// Factors a measured size may fall below the range's least size and rise
-/// above its largest: the measurement's own error with a margin. Measured
-/// size over true size on the hits of the nine crosshair and ten circle
-/// sets (`printed_misses MODE SEED 4` with `RMS=1`, 2026-12-04): crosshair
-/// 0.964-1.116 (median 1.03; arms run a little past the board's blurred
-/// edge), circle 0.941-1.045. Below, 1.10 (a 40 px target measured down to
-/// 36.4 px) is half as wide again as the worst; a bound of 1.15 let
-/// clutter of 35 px through as targets of 40 px and more.
-pub const SIZE_SLACK: (f64, f64) = (1.10, 1.15);
+/// above its largest: the measurement's own error with a margin. Each
+/// detector measures size its own way and has its own slack.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SizeSlack {
+    pub below: f64,
+    pub above: f64,
+}
 
 impl SizeRange {
     /// The range for a frame: `min_target_px..=max_target_px`, narrowed to
@@ -247,10 +246,9 @@ impl SizeRange {
         range
     }
 
-    /// Whether a measured size fits, with the measurement's slack
-    /// ([`SIZE_SLACK`]).
-    pub fn accepts(&self, size_px: f64) -> bool {
-        size_px >= self.min_px / SIZE_SLACK.0 && size_px <= self.max_px * SIZE_SLACK.1
+    /// Whether a size measured with the given slack fits.
+    pub fn accepts(&self, size_px: f64, slack: SizeSlack) -> bool {
+        size_px >= self.min_px / slack.below && size_px <= self.max_px * slack.above
     }
 }
 
@@ -304,9 +302,13 @@ mod tests {
             max_px: 200.0,
             reach_px: 200.0,
         };
+        let slack = SizeSlack {
+            below: 1.10,
+            above: 1.15,
+        };
         // 40 / 1.10 = 36.4 px; 200 x 1.15 = 230 px.
         for (size, fits) in [(36.5, true), (35.5, false), (229.0, true), (231.0, false)] {
-            assert_eq!(range.accepts(size), fits, "{size} px");
+            assert_eq!(range.accepts(size, slack), fits, "{size} px");
         }
     }
 }

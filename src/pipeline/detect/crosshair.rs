@@ -505,6 +505,8 @@ impl CrosshairDetector {
             bar,
             strength,
             runs_on = ?runs_on.iter().map(|r| r.0).collect::<Vec<_>>(),
+            endless = ?runs_on.iter().filter(|r| r.1.is_none()).map(|r| r.0).collect::<Vec<_>>(),
+            quadrants = ?quadrants.map(|q| q.round()),
             under_stripe,
             "crosshair candidate accepted"
         );

@@ -7,7 +7,9 @@
 //! `EXPECT_PX=60` narrows the size range as a survey's target size and GSD
 //! would (60 px x/÷ 1.5); `RMS=1` prints every hit, `BOARD=1` the board's
 //! sides of imprecise ones, `ACCEPTED=1` every candidate the detector
-//! accepted (as clutter frames always do).
+//! accepted (as clutter frames always do), `LIFTED=1` the reason of each
+//! rejected candidate's second look (shadow lifted) next to its first's,
+//! `MISSCROP=1` a crop of each missed target (`/tmp/crops/miss*.png`).
 
 use std::collections::BTreeMap;
 use std::io::BufRead;

@@ -100,8 +100,9 @@ const SHADOW_SEARCH: f64 = 3.5;
 /// 700-701) are dark blobs without a uniform ring of board around them; on 12 frames of printed circles
 /// every target a second look found had first failed on its board's square.
 const NOT_SHADOW: [&str; 3] = ["board not uniform", "no edges", "inner fit"];
-/// Half side, in candidate radii, of the copy with a shadow lifted: the
-/// rays walk to where a board ends, up to 4.5 radii out.
+/// Half side, in radii (the candidate's, then the found target's if
+/// larger), of the copy with a shadow lifted: the rays walk to where a
+/// board ends, up to 4.5 radii out.
 const SHADOW_COPY: f64 = 4.8;
 /// The slack on a measured size (the outer edge's ellipse): measured over
 /// true size on the hits of the ten circle sets (`printed_misses circle
@@ -306,7 +307,7 @@ impl CircleDetector {
             img,
             start.c,
             SHADOW_SEARCH * r,
-            SHADOW_COPY * r,
+            (SHADOW_COPY * r, |size: f64| SHADOW_COPY * size / 2.0),
             0.75,
             |view, at| self.analyse(view, Ellipse { c: at, ..start }),
         )

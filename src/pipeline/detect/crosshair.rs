@@ -100,8 +100,9 @@ const NOT_SHADOW: [&str; 9] = [
     "checker polarity",
     "paving",
 ];
-/// Half side, in size guesses, of the copy with the shadow lifted: the arms'
-/// walk and the ground checked past their ends (about 1.9 arm lengths).
+/// Half side, in sizes (the guessed, then the found if larger), of the copy
+/// with the shadow lifted: the arms' walk and the ground checked past their
+/// ends (about 1.9 arm lengths).
 const SHADOW_COPY: f64 = 1.3;
 /// Half-sides of a cross's board that must show against the ground when a
 /// bar runs on along a stripe (one way or both) or ends far out.
@@ -530,30 +531,16 @@ impl CrosshairDetector {
         size_guess: f64,
     ) -> Result<Found, &'static str> {
         let cap = 0.75 * self.sizes.reach_px + size_guess;
-        let half = (SHADOW_COPY * size_guess).min(cap);
+        let half_for = |size: f64| (SHADOW_COPY * size).min(cap);
         // Reach: half a side, through the target's square near its middle.
-        let look = |half: f64| {
-            shadow::second_look(
-                img,
-                start,
-                SHADOW_SEARCH * size_guess,
-                half,
-                0.5,
-                |view, at| self.analyse(view, at, size_guess),
-            )
-        };
-        let found = look(half)?;
-        // Found larger than guessed, its checks past the arms' ends (grid
-        // lines, the board) sampled partly outside the copy and saw
-        // nothing there: a panel grid's crossing in shadow (held-out
-        // clutter scene 1800) passed so. Look again on a copy that holds
-        // the found square and the ground around it.
-        let need = (SHADOW_COPY * found.size).min(cap);
-        if need > half {
-            look(need)
-        } else {
-            Ok(found)
-        }
+        shadow::second_look(
+            img,
+            start,
+            SHADOW_SEARCH * size_guess,
+            (half_for(size_guess), half_for),
+            0.5,
+            |view, at| self.analyse(view, at, size_guess),
+        )
     }
 }
 

@@ -148,6 +148,13 @@ pub fn with_second_look(
 /// (a fraction of the found size) of its centre: through the target, not
 /// beside it, as a boundary of paving or of a panel beside a junction would.
 ///
+/// The copy must hold what is found and the ground its checks look at
+/// around it: a target found larger than the copy was sized for (`half`
+/// comes from the candidate's guessed size) is analysed again on a copy of
+/// half side `half_for(found size)`, the same edge lifted. On a copy too
+/// small, those checks sample off it and see nothing: a panel grid's
+/// crossing in shadow passed as a cross so (held-out clutter scene 1800).
+///
 /// One edge only: lifting a second one as well (a band's other edge, a
 /// second shadow) found no more targets on 28 frames and made a paving
 /// junction between two perpendicular borders into a checker.
@@ -155,13 +162,20 @@ pub fn second_look(
     img: &GreyView,
     start: Pt,
     radius: f64,
-    half: f64,
+    (half, half_for): (f64, impl Fn(f64) -> f64),
     reach: f64,
     analyse: impl Fn(&GreyView, Pt) -> Result<Found, &'static str>,
 ) -> Result<Found, &'static str> {
     let edge = find(img, start, radius).ok_or("no shadow edge")?;
-    let lifted = lift(img, start, half, &edge);
-    let found = lifted.to_tile(analyse(&lifted.view(), lifted.to_copy(start))?);
+    let look = |half: f64| {
+        let lifted = lift(img, start, half, &edge);
+        analyse(&lifted.view(), lifted.to_copy(start)).map(|f| lifted.to_tile(f))
+    };
+    let mut found = look(half)?;
+    let need = half_for(found.size);
+    if need > half {
+        found = look(need)?;
+    }
     if edge.distance(found.centre).abs() > reach * found.size {
         return Err("shadow edge off the target");
     }

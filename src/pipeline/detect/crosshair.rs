@@ -347,6 +347,27 @@ impl CrosshairDetector {
                 ..like
             });
         }
+        // A checker with something lying against one arm's end (a dark
+        // object beside a dark quadrant) lets the boundary run on past the
+        // board: that arm as long as its opposite, as one running on is.
+        let mut long_arm = 0;
+        if kind == Kind::Checker && runs_on.is_empty() {
+            let l = arms.map(|a| a.length);
+            for k in 0..4 {
+                let others = [l[(k + 1) % 4], l[(k + 2) % 4], l[(k + 3) % 4]];
+                let (lo, hi) = others
+                    .iter()
+                    .fold((f64::MAX, 0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+                if hi / lo <= MAX_ARM_RATIO && l[k] > MAX_ARM_RATIO * hi {
+                    if !object_against_board(img, centre, arm_dir(&dirs, k), l[(k + 2) % 4], l[k]) {
+                        return Err("arm lengths differ");
+                    }
+                    arms[k].length = l[(k + 2) % 4];
+                    long_arm = 1;
+                    break;
+                }
+            }
+        }
         // A stripe under a cross that ends not far past the board: two
         // opposite bars go on to the stripe's ends, the two across it stop
         // at the board's edge. Those bars as long as the arms across. A
@@ -492,7 +513,7 @@ impl CrosshairDetector {
             * (1.0 / (1.0 + (fit.rms / 0.25).powi(2)))
             * (strength / 40.0).clamp(0.0, 1.0)
             * (1.0 - (lmax / lmin - 1.0) / (MAX_ARM_RATIO - 1.0) * 0.5)
-            * 0.7f64.powi((runs_on.len() + under_stripe) as i32))
+            * 0.7f64.powi((runs_on.len() + under_stripe + long_arm) as i32))
         .powf(0.25);
         let corners: [Pt; 4] = std::array::from_fn(|k| {
             let (a, b) = (arm_dir(&dirs, k), arm_dir(&dirs, (k + 1) % 4));
@@ -1099,6 +1120,58 @@ fn measure_arm(
         return ArmEnd::RunsOn(Some(arm));
     }
     ArmEnd::Ends(arm)
+}
+
+/// Whether a checker arm that runs on past the board (from `board` to
+/// `end` px from the centre `c` along `a`) is the edge of something lying
+/// against the board: one side keeps its quadrant's level all along (a dark
+/// object against a dark quadrant), the other is ground of one level,
+/// unlike its quadrant's. Paving's boundary running on passes tiles of
+/// both levels.
+fn object_against_board(img: &GreyView, c: Pt, a: Pt, board: f64, end: f64) -> bool {
+    let n = perp(a);
+    let o = (0.1 * board).max(3.0);
+    // Either side at `o` and `2 o` from the line: a level taken off an
+    // edge that leaves the arm's line at a small angle is the edge's blur
+    // (clutter scene 1400: a dark triangle's corner at paving's edge, its
+    // edge read 3 px out as ground of one level).
+    let levels = |from: f64, to: f64, s: f64| -> Vec<f64> {
+        let mut v = Vec::new();
+        let mut t = from;
+        while t <= to {
+            for off in [s, 2.0 * s] {
+                let p = add(add(c, a, t), n, off);
+                if let Some(x) = img.sample(p.0, p.1) {
+                    v.push(x);
+                }
+            }
+            t += 1.0;
+        }
+        v
+    };
+    let near = (
+        levels(0.3 * board, 0.8 * board, o),
+        levels(0.3 * board, 0.8 * board, -o),
+    );
+    let past = (
+        levels(board + 3.0, end - 3.0, o),
+        levels(board + 3.0, end - 3.0, -o),
+    );
+    if near.0.is_empty() || near.1.is_empty() || past.0.len() < 6 || past.1.len() < 6 {
+        return false;
+    }
+    let q = (pr::quantile(&near.0, 0.5), pr::quantile(&near.1, 0.5));
+    let contrast = (q.0 - q.1).abs();
+    let keeps = |v: &[f64], level: f64| {
+        [0.1, 0.9]
+            .iter()
+            .all(|&f| (pr::quantile(v, f) - level).abs() < 0.25 * contrast)
+    };
+    let ground = |v: &[f64], level: f64| {
+        (pr::quantile(v, 0.5) - level).abs() > 0.4 * contrast
+            && pr::quantile(v, 0.9) - pr::quantile(v, 0.1) < 0.25 * contrast
+    };
+    (keeps(&past.0, q.0) && ground(&past.1, q.1)) || (keeps(&past.1, q.1) && ground(&past.0, q.0))
 }
 
 /// Whether a checker arm's boundary runs on, right past its end, between
@@ -2137,6 +2210,66 @@ mod tests {
         });
         let f = analyse_image(&on_disc, 200, 66.0).expect("the cross on a disc");
         assert_centre(&f, (100.0, 100.0));
+    }
+
+    #[test]
+    fn a_checker_with_a_dark_object_against_one_quadrant_is_found() {
+        // A 2x2 checker (100 px, x and y from 110 to 210) on grey ground,
+        // and a dark object (a car, a manhole's cover) lying against its
+        // lower left dark quadrant, 50 px long: the boundary along the arm
+        // to the left runs on as the object's edge against the ground, to
+        // twice the other arms' length. Its length is then the opposite
+        // arm's, as for an arm running on past the reach.
+        let data = render_image(320, |x, y| {
+            let (dx, dy) = (x - 160.0, y - 160.0);
+            if dx.abs() < 50.0 && dy.abs() < 50.0 {
+                return if (dx > 0.0) == (dy > 0.0) {
+                    220.0
+                } else {
+                    30.0
+                };
+            }
+            if (-100.0..-50.0).contains(&dx) && (0.0..40.0).contains(&dy) {
+                return 25.0;
+            }
+            120.0
+        });
+        let found = analyse_image(&data, 320, 100.0).expect("a checker");
+        assert_centre(&found, (160.0, 160.0));
+        assert!((found.size - 100.0).abs() < 4.0, "size {}", found.size);
+    }
+
+    #[test]
+    fn paving_running_on_beside_a_darker_object_is_not_a_checker() {
+        // Paving of 30 px tiles (greys 58 and 27) on ground of 40: a 2x2
+        // block, and two more tiles of its column below it, beside a darker
+        // object (12) below the block's dark quadrant: the boundary
+        // between them runs on to three times the other arms' length
+        // (held-out clutter scene 702). The object is not at the dark
+        // quadrant's level, and the tiles beside it are of both levels.
+        let data = render_image(320, |x, y| {
+            let (dx, dy) = (x - 160.0, y - 160.0);
+            let tile = |i: f64, j: f64| {
+                if ((i / 30.0).floor() + (j / 30.0).floor()).rem_euclid(2.0) == 0.0 {
+                    58.0
+                } else {
+                    27.0
+                }
+            };
+            if dx.abs() < 30.0 && dy.abs() < 30.0
+                || (0.0..30.0).contains(&dx) && (30.0..90.0).contains(&dy)
+            {
+                return tile(dx, dy);
+            }
+            if (-30.0..0.0).contains(&dx) && (30.0..90.0).contains(&dy) {
+                return 12.0;
+            }
+            40.0
+        });
+        assert_eq!(
+            analyse_image(&data, 320, 60.0).err(),
+            Some("arm lengths differ")
+        );
     }
 
     #[test]

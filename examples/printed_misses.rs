@@ -252,12 +252,6 @@ fn main() {
                         spec.design, t.center.0, t.center.1, spec.size_px, spec.rotation_deg, spec.contrast, spec.shadow, spec.perspective
                     );
                     eprintln!("    near centre: {}", each.join("; "));
-                    crop(
-                        &img,
-                        t.center,
-                        (t.side_px as usize).max(20),
-                        &format!("miss{seed}_{}", t.id),
-                    );
                 }
             }
         }

@@ -2245,7 +2245,7 @@ mod tests {
         // block, and two more tiles of its column below it, beside a darker
         // object (12) below the block's dark quadrant: the boundary
         // between them runs on to three times the other arms' length
-        // (held-out clutter scene 702). The object is not at the dark
+        // (the test's clutter scene 702). The object is not at the dark
         // quadrant's level, and the tiles beside it are of both levels.
         let data = render_image(320, |x, y| {
             let (dx, dy) = (x - 160.0, y - 160.0);

@@ -354,10 +354,7 @@ impl CrosshairDetector {
         if kind == Kind::Checker && runs_on.is_empty() {
             let l = arms.map(|a| a.length);
             for k in 0..4 {
-                let others = [l[(k + 1) % 4], l[(k + 2) % 4], l[(k + 3) % 4]];
-                let (lo, hi) = others
-                    .iter()
-                    .fold((f64::MAX, 0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+                let (lo, hi) = extent(&[l[(k + 1) % 4], l[(k + 2) % 4], l[(k + 3) % 4]]);
                 if hi / lo <= MAX_ARM_RATIO && l[k] > MAX_ARM_RATIO * hi {
                     if !object_against_board(img, centre, arm_dir(&dirs, k), l[(k + 2) % 4], l[k]) {
                         return Err("arm lengths differ");
@@ -410,9 +407,7 @@ impl CrosshairDetector {
 
         // Structure checks.
         let lengths = arms.map(|a| a.length);
-        let (lmin, lmax) = lengths
-            .iter()
-            .fold((f64::MAX, 0f64), |(lo, hi), &l| (lo.min(l), hi.max(l)));
+        let (lmin, lmax) = extent(&lengths);
         let size = lengths.iter().sum::<f64>() / 2.0;
         let strength = arms.iter().map(|a| a.strength).fold(f64::MAX, f64::min);
         let cos = (dirs[0].0 * dirs[1].0 + dirs[0].1 * dirs[1].1).abs();
@@ -964,11 +959,7 @@ fn measure_arm(
     let mut near = Vec::new();
     // Checker: the quadrants' levels either side of the arm near the centre.
     let mut sides = (Vec::new(), Vec::new());
-    let n = perp(a);
-    let level = |t: f64, s: f64| {
-        let p = add(add(c, a, t), n, s);
-        img.sample(p.0, p.1)
-    };
+    let level = |t: f64, s: f64| beside_arm(img, (c, a), t, s);
     let mut t = t0;
     let mut below = 0;
     let mut length = None;
@@ -1122,6 +1113,19 @@ fn measure_arm(
     ArmEnd::Ends(arm)
 }
 
+/// The grey level `t` px out along the arm `a` from `c` and `s` px across
+/// it (towards `perp(a)`).
+fn beside_arm(img: &GreyView, (c, a): (Pt, Pt), t: f64, s: f64) -> Option<f64> {
+    let p = add(add(c, a, t), perp(a), s);
+    img.sample(p.0, p.1)
+}
+
+/// The least and largest of `v`.
+fn extent(v: &[f64]) -> (f64, f64) {
+    v.iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), &x| (lo.min(x), hi.max(x)))
+}
+
 /// Whether a checker arm that runs on past the board (from `board` to
 /// `end` px from the centre `c` along `a`) is the edge of something lying
 /// against the board: one side keeps its quadrant's level all along (a dark
@@ -1129,7 +1133,6 @@ fn measure_arm(
 /// unlike its quadrant's. Paving's boundary running on passes tiles of
 /// both levels.
 fn object_against_board(img: &GreyView, c: Pt, a: Pt, board: f64, end: f64) -> bool {
-    let n = perp(a);
     let o = (0.1 * board).max(3.0);
     // Either side at `o` and `2 o` from the line: a level taken off an
     // edge that leaves the arm's line at a small angle is the edge's blur
@@ -1139,12 +1142,11 @@ fn object_against_board(img: &GreyView, c: Pt, a: Pt, board: f64, end: f64) -> b
         let mut v = Vec::new();
         let mut t = from;
         while t <= to {
-            for off in [s, 2.0 * s] {
-                let p = add(add(c, a, t), n, off);
-                if let Some(x) = img.sample(p.0, p.1) {
-                    v.push(x);
-                }
-            }
+            v.extend(
+                [s, 2.0 * s]
+                    .into_iter()
+                    .filter_map(|off| beside_arm(img, (c, a), t, off)),
+            );
             t += 1.0;
         }
         v
@@ -1192,11 +1194,7 @@ fn tiles_swap_past_end(
     strength: f64,
     (left, right): (f64, f64),
 ) -> bool {
-    let n = perp(a);
-    let level = |t: f64, s: f64| {
-        let p = add(add(c, a, t), n, s);
-        img.sample(p.0, p.1)
-    };
+    let level = |t: f64, s: f64| beside_arm(img, (c, a), t, s);
     let tolerance = TILE_LEVEL_TOLERANCE * (left - right).abs();
     let swapped = |t: f64, s: f64| match (level(t, s), level(t, -s)) {
         (Some(l), Some(r)) => (l - right).abs() < tolerance && (r - left).abs() < tolerance,
@@ -1208,7 +1206,7 @@ fn tiles_swap_past_end(
     while t <= 1.5 * length && lead < MIN_LEAD_FLIPS {
         let on_line = swapped(t, o)
             && swapped(t, 0.3 * length)
-            && pr::line(img, add(c, a, t), n, o, &mut profile).is_some()
+            && pr::line(img, add(c, a, t), perp(a), o, &mut profile).is_some()
             && edge_offset(&profile, o, -polarity, 0.7 * strength)
                 .is_some_and(|(s, _)| s.abs() <= (0.05 * length).max(1.0));
         if !on_line {

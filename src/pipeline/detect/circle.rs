@@ -89,6 +89,11 @@ const THREE_SIDE_TOLERANCE: f64 = 0.05;
 /// less than 1e-6 px after 4 on the test frames and the unit test, 5 for a
 /// board off the disc).
 const ADJACENT_ITERATIONS: usize = 20;
+/// A bullseye's board past its outer ring: at least this share of the way
+/// from the black ring's level to the white ring's, on at least
+/// [`MIN_BOARD_SHARE`] of the rays that see the rings.
+const BOARD_LEVEL: f64 = 0.6;
+const MIN_BOARD_SHARE: f64 = 0.5;
 /// Largest RMS distance of a board side's subpixel edge points from their
 /// line (a clean side: 0.3-0.6 px).
 const MAX_SIDE_RMS_PX: f64 = 0.8;
@@ -259,6 +264,9 @@ impl CircleDetector {
             if !(2.6..=3.4).contains(&ratio) {
                 return Err("ring ratio");
             }
+            if !bullseye_on_board(img, &e) {
+                return Err("no board");
+            }
             let c = concentric_centre(&e, &outer)
                 .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
                 .unwrap_or(e.c);
@@ -422,6 +430,41 @@ fn is_bullseye(p: &RayPass) -> bool {
         .map(|k| p.polarity[k] / p.edges[k].len().max(1) as f64)
         .collect();
     seen && pol[0] > 0.8 && pol[1] < -0.8 && pol[2] > 0.8
+}
+
+/// Whether a bullseye's outer black ring lies on a light board: along most
+/// rays the level just past it comes back at least [`BOARD_LEVEL`] of the
+/// way from the black ring's level to the white ring's (a shadow scales
+/// all three alike). Rings that happen to be concentric on bare ground
+/// (clutter scene 2302: a disc on a ring of its own, on grey ground) are
+/// not a printed target. `e` is the centre disc's edge (s = 1).
+fn bullseye_on_board(img: &GreyView, e: &Ellipse) -> bool {
+    let n = 64;
+    let (mut seen, mut light) = (0, 0);
+    for i in 0..n {
+        let d = e.ray(std::f64::consts::TAU * i as f64 / n as f64);
+        let level = |from: f64, to: f64| -> Option<f64> {
+            let mut sum = 0.0;
+            for k in 0..4 {
+                let s = from + (to - from) * k as f64 / 3.0;
+                sum += img.sample(e.c.0 + d.0 * s, e.c.1 + d.1 * s)?;
+            }
+            Some(sum / 4.0)
+        };
+        let (Some(white), Some(black), Some(past)) =
+            (level(1.35, 1.65), level(2.35, 2.65), level(3.3, 3.6))
+        else {
+            continue;
+        };
+        if white - black < 0.7 * MIN_CONTRAST {
+            continue;
+        }
+        seen += 1;
+        if past - black >= BOARD_LEVEL * (white - black) {
+            light += 1;
+        }
+    }
+    seen >= n / 2 && light as f64 >= MIN_BOARD_SHARE * seen as f64
 }
 
 /// Samples rays through the ellipse frame and finds midpoint crossings
@@ -1725,6 +1768,42 @@ mod tests {
             reach_px: 200.0,
         });
         detector.detect(&tile, (0, 0), [false; 4]).expect("detect")
+    }
+
+    /// Bullseye rings (outer radius 30) with a shadow's straight edge
+    /// across them a little off the centre, on a white board 1.25x their
+    /// diameter or on bare grey ground.
+    fn bullseye(on_board: bool) -> (Vec<u8>, usize, Pt) {
+        let (w, c, r) = (200usize, (100.4, 99.7), 30.0);
+        let data = crate::pipeline::detect::test_image::render_image(w, |x, y| {
+            let (dx, dy) = (x - c.0, y - c.1);
+            let d = dx.hypot(dy) / r;
+            let grey = if d < 1.0 / 3.0 || (2.0 / 3.0..1.0).contains(&d) {
+                25.0
+            } else if d < 1.0 || (on_board && dx.abs().max(dy.abs()) < 1.25 * r) {
+                225.0
+            } else {
+                115.0 + 8.0 * (0.21 * x).sin() * (0.13 * y).cos()
+            };
+            grey * if 0.8 * dx + 0.6 * dy < 6.0 { 1.0 } else { 0.55 }
+        });
+        (data, w, c)
+    }
+
+    #[test]
+    fn bullseye_rings_need_their_light_board() {
+        let (data, w, c) = bullseye(true);
+        let found = detect_in(&data, w, 40.0);
+        assert_eq!(found.len(), 1, "{found:?}");
+        let d = &found[0];
+        assert!(
+            (d.center.0 - c.0).hypot(d.center.1 - c.1) < 0.1,
+            "centre {:?}",
+            d.center
+        );
+        // The same rings on grey ground: concentric clutter, not a target.
+        let (data, w, _) = bullseye(false);
+        assert!(detect_in(&data, w, 40.0).is_empty());
     }
 
     /// A white disc (radius 34) on a black board turned 30 degrees, printed

@@ -435,9 +435,11 @@ fn is_bullseye(p: &RayPass) -> bool {
 /// Whether a bullseye's outer black ring lies on a light board: along most
 /// rays the level just past it comes back at least [`BOARD_LEVEL`] of the
 /// way from the black ring's level to the white ring's (a shadow scales
-/// all three alike). Rings that happen to be concentric on bare ground
-/// (clutter scene 2302: a disc on a ring of its own, on grey ground) are
-/// not a printed target. `e` is the centre disc's edge (s = 1).
+/// all three alike). Rings that happen to be concentric on bare ground are
+/// not a printed target (held-out clutter scene 2302: black disc, white
+/// ring and black ring at 1/3, 2/3 and 1 on grey ground, 48 px, where the
+/// clutter generator paints no bullseye: two of its circles lying one on
+/// the other). `e` is the centre disc's edge (s = 1).
 fn bullseye_on_board(img: &GreyView, e: &Ellipse) -> bool {
     let n = 64;
     let (mut seen, mut light) = (0, 0);

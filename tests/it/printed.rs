@@ -110,13 +110,15 @@ fn bullseye_and_disc_centres_are_subpixel() {
 /// Solar panels, paving checkers, road crosses, manholes, pyramid roofs,
 /// tanks on roofs, cars, windows, discs and rings: nothing is a target, on
 /// 10 frames (seeds 700-709; 705, 707 and 709 held look-alikes that earlier
-/// versions took for targets).
+/// versions took for targets), and a frame of a held-out set whose only
+/// detection a later change removed: 2302 (rings lying concentric on bare
+/// ground, taken for a bullseye).
 #[test]
 fn lookalike_clutter_gives_no_detection() {
     let dir = tempfile::tempdir().unwrap();
     let modes = [MarkerType::Crosshair, MarkerType::Circle];
-    for seed in 0..10 {
-        let scene = clutter_scene(2400, 1800, 700 + seed);
+    for seed in (700..710).chain([2302]) {
+        let scene = clutter_scene(2400, 1800, seed);
         let name = format!("clutter{seed}.png");
         let (path, _) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);
         let result = run_one(&path, &printed_options(&modes));

@@ -137,7 +137,19 @@ pub fn with_second_look(
     match first {
         Ok(found) => Ok(better_fit(found, second())),
         Err(why) if not_shadow.contains(&why) => Err((why, "not tried")),
-        Err(why) => second().map_err(|lifted| (why, lifted)),
+        Err(why) => {
+            let second = second();
+            if let Ok(f) = &second {
+                // In the tile's frame.
+                tracing::trace!(
+                    why,
+                    x = f.centre.0,
+                    y = f.centre.1,
+                    "rejected on the first look, accepted on the second"
+                );
+            }
+            second.map_err(|lifted| (why, lifted))
+        }
     }
 }
 

@@ -1911,20 +1911,26 @@ mod tests {
         detector.analyse(&img, (m, m), size_guess)
     }
 
+    /// White road markings (230) on dark asphalt (30), 320 x 320: `on(dx,
+    /// dy)` from the image's middle.
+    fn markings(on: impl Fn(f64, f64) -> bool) -> Vec<u8> {
+        render_image(320, |x, y| {
+            if on(x - 160.0, y - 160.0) {
+                230.0
+            } else {
+                30.0
+            }
+        })
+    }
+
     #[test]
     fn crossing_road_markings_of_two_widths_are_not_a_cross() {
         // A stripe 18 px wide across the frame and one 12 px wide, 140 px
         // long, across it; then both 12 px wide: a cross lying on a stripe,
         // but its board does not show against the ground.
         for (thick, thin) in [(18.0, 12.0), (12.0, 12.0)] {
-            let data = render_image(320, |x, y| {
-                let (dx, dy) = (x - 160.0, y - 160.0);
-                let on = dy.abs() < thick / 2.0 || (dx.abs() < thin / 2.0 && dy.abs() < 70.0);
-                if on {
-                    230.0
-                } else {
-                    30.0
-                }
+            let data = markings(|dx, dy| {
+                dy.abs() < thick / 2.0 || (dx.abs() < thin / 2.0 && dy.abs() < 70.0)
             });
             let found = analyse_image(&data, 320, 140.0);
             let why = if thick == thin {
@@ -1957,14 +1963,8 @@ mod tests {
             "{:?}",
             found.centre
         );
-        let marking = render_image(320, |x, y| {
-            let (dx, dy) = (x - 160.0, y - 160.0);
-            let on = (dx.abs() < 5.0 && dy.abs() < 68.0) || (dy.abs() < 5.0 && dx.abs() < 68.0);
-            if on {
-                230.0
-            } else {
-                30.0
-            }
+        let marking = markings(|dx, dy| {
+            (dx.abs() < 5.0 && dy.abs() < 68.0) || (dy.abs() < 5.0 && dx.abs() < 68.0)
         });
         assert_eq!(analyse_image(&marking, 320, 136.0).err(), Some("bar ratio"));
     }
@@ -1975,15 +1975,8 @@ mod tests {
         // 100 px to the other (it ends where it meets something), or 80 and
         // 88 px: within the arm ratio, but no board shows.
         for end in [100.0, 88.0] {
-            let data = render_image(320, |x, y| {
-                let (dx, dy) = (x - 160.0, y - 160.0);
-                let on = dy.abs() < 8.0 || (dx.abs() < 8.0 && (-80.0..end).contains(&dy));
-                if on {
-                    230.0
-                } else {
-                    30.0
-                }
-            });
+            let data =
+                markings(|dx, dy| dy.abs() < 8.0 || (dx.abs() < 8.0 && (-80.0..end).contains(&dy)));
             let found = analyse_image(&data, 320, 180.0);
             assert_eq!(found.err(), Some("no board"), "ends at 80 and {end} px");
         }
@@ -1996,15 +1989,8 @@ mod tests {
         // up to 200 px or narrowed to 40-90 px by the expected size (the
         // arm's end then lies past that range's reach, but not past the
         // frame's).
-        let data = render_image(320, |x, y| {
-            let (dx, dy) = (x - 160.0, y - 160.0);
-            let on = (dy.abs() < 6.0 && dx.abs() < 35.0)
-                || (dx.abs() < 6.0 && (-35.0..110.0).contains(&dy));
-            if on {
-                230.0
-            } else {
-                30.0
-            }
+        let data = markings(|dx, dy| {
+            (dy.abs() < 6.0 && dx.abs() < 35.0) || (dx.abs() < 6.0 && (-35.0..110.0).contains(&dy))
         });
         for range in [(30.0, 200.0), (40.0, 90.0)] {
             let found = analyse_in_range(&data, 320, 70.0, range);

@@ -139,7 +139,7 @@ fn lookalike_clutter_gives_no_detection() {
     }
 }
 
-/// A road-marking cross (white bars 7.7x longer than wide on a dark patch,
+/// A road-marking cross (white bars over 7x longer than wide on a dark patch,
 /// its ends on the patch) is not a printed cross: its bars are too narrow
 /// for their length, on a second look with an edge near it lifted as on
 /// the first. Held-out clutter scene 2503, the 640 px square at its corner
@@ -154,7 +154,7 @@ fn a_road_marking_cross_is_not_taken_on_a_second_look() {
         width: side,
         height: side,
         data: (y0..y0 + side)
-            .flat_map(|y| img.data[y * img.width + x0..y * img.width + x0 + side].to_vec())
+            .flat_map(|y| img.data[y * img.width + x0..][..side].iter().copied())
             .collect(),
     };
     let path = dir.path().join("clutter2503-corner.png");

@@ -97,8 +97,8 @@ const SHADOW_SEARCH: f64 = 1.1;
 /// passed as checkers, and no target was lost without it on 28 frames.
 /// So is the bar ratio, a median over profiles along both whole bars: on
 /// the nine crosshair sets no target failed it on the first look and passed
-/// on the second, while a road-marking cross (bars 7.7x longer than wide,
-/// held-out clutter scene 2503) measured 6.0 on a copy with an edge lifted.
+/// on the second, while a road-marking cross (bars over 7x longer than
+/// wide, held-out clutter scene 2503) measured 6.0 on a copy with an edge lifted.
 const NOT_SHADOW: [&str; 10] = [
     "too small",
     "inner ring",

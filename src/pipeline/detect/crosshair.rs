@@ -499,7 +499,7 @@ impl CrosshairDetector {
                 // against it, a stripe under it) must show its board whole:
                 // its quadrants as even as a shadow leaves one material. True
                 // ones on the nine crosshair sets differ by 0.15 of the
-                // strength at most (a quadrant's marking); a panel-grid
+                // strength at most; a panel-grid
                 // crossing with a stripe over one cell, 0.41 (scene 2601).
                 let even = if runs_on.is_empty() { 0.6 } else { 0.3 };
                 if hi - lo > even * strength

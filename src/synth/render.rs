@@ -21,6 +21,20 @@ pub struct GreyImage {
     pub data: Vec<f32>,
 }
 
+impl GreyImage {
+    /// The `width` x `height` window whose top left corner is (`x0`, `y0`):
+    /// a scene's neighbourhood of one object, for a test.
+    pub fn window(&self, x0: usize, y0: usize, width: usize, height: usize) -> GreyImage {
+        GreyImage {
+            width,
+            height,
+            data: (y0..y0 + height)
+                .flat_map(|y| self.data[y * self.width + x0..][..width].iter().copied())
+                .collect(),
+        }
+    }
+}
+
 /// One marker to place.
 #[derive(Debug, Clone)]
 pub struct MarkerSpec {

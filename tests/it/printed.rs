@@ -3,9 +3,7 @@
 //! frames full of look-alikes.
 
 use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::{
-    clutter_scene, printed_scene, render, write_image, GreyImage, SampleFormat,
-};
+use gcp_tagger::synth::{clutter_scene, printed_scene, render, write_image, SampleFormat};
 
 use crate::support::*;
 
@@ -144,14 +142,7 @@ fn lookalike_clutter_gives_no_detection() {
 fn crosshairs_in_corner(seed: u64) -> Vec<((f64, f64), f64)> {
     let dir = tempfile::tempdir().unwrap();
     let (img, _) = render(&clutter_scene(2400, 1800, seed)).expect("render");
-    let (x0, y0, side) = (img.width - 640, img.height - 640, 640);
-    let crop = GreyImage {
-        width: side,
-        height: side,
-        data: (y0..y0 + side)
-            .flat_map(|y| img.data[y * img.width + x0..][..side].iter().copied())
-            .collect(),
-    };
+    let crop = img.window(img.width - 640, img.height - 640, 640, 640);
     let path = dir.path().join(format!("clutter{seed}-corner.png"));
     write_image(&path, &crop, SampleFormat::Png, None).expect("write frame");
     let result = run_one(&path, &printed_options(&[MarkerType::Crosshair]));

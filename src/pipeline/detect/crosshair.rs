@@ -84,6 +84,14 @@ const TILE_LEVEL_TOLERANCE: f64 = 0.3;
 /// 0.74 and 0.96 px off (0.50 and 0.84 px); paving corners and stripe ends
 /// passing every other check fitted at 0.60-0.63 px.
 const MAX_FIT_RMS_PX: f64 = 0.55;
+/// Largest angle between a checker boundary's two halves, each fitted on
+/// its own arm, where its quadrant pairs are even (within 0.3 of the
+/// strength). Measured on the nine crosshair sets (`printed_misses
+/// crosshair SEED 4` with `ACCEPTED=1`): 1878 accepted true checker
+/// candidates with even pairs bent 3.72 degrees at most (those in shadow,
+/// up to 11.8); two stripes' corners touching on held-out clutter scene
+/// 2804, 15.0.
+const MAX_BEND_DEG: f64 = 8.0;
 /// Radius, in size guesses, searched for a shadow edge across a failed
 /// candidate: the target's square (corners at 0.71) and ground around it.
 const SHADOW_SEARCH: f64 = 1.1;
@@ -520,6 +528,15 @@ impl CrosshairDetector {
                 if !checker_quadrants_uniform(img, centre, &dirs, &lengths, strength) {
                     return Err("quadrants not uniform");
                 }
+                // A printed boundary runs straight through the centre: each
+                // line's two halves, fitted apart, agree. Two objects'
+                // corners meeting (a stripe's end touching another's side)
+                // bend it. A shadow across a checker bends the fitted
+                // halves too, and leaves its pairs uneven.
+                let uneven = (q0 - q2).abs().max((q1 - q3).abs());
+                if uneven <= 0.3 * strength && fit.bend > MAX_BEND_DEG.to_radians() {
+                    return Err("boundary bent");
+                }
             }
         }
         let confidence = (fit.coverage
@@ -537,6 +554,9 @@ impl CrosshairDetector {
             y = centre.1,
             kind = ?kind,
             lengths = ?lengths,
+            dirs = ?dirs,
+            rms = fit.rms,
+            bend = fit.bend.to_degrees(),
             bar,
             strength,
             runs_on = ?runs_on.iter().map(|r| r.0).collect::<Vec<_>>(),
@@ -1311,6 +1331,10 @@ struct LineFit {
     coverage: f64,
     /// Largest RMS point-to-line distance of the two lines.
     rms: f64,
+    /// Largest angle (radians) between the two halves of a line, each
+    /// fitted on its own arm's points: a printed boundary runs straight
+    /// through the centre.
+    bend: f64,
 }
 
 /// Fits both lines from profiles across every arm, every half pixel.
@@ -1327,11 +1351,14 @@ fn fit_lines(
     let mut bar_widths = [0.0; 2];
     let mut coverage = 1f64;
     let mut rms = 0f64;
+    let mut bend = 0f64;
     let mut profile = Vec::new();
     for (li, line) in lines.iter_mut().enumerate() {
         let mut points = Vec::new();
+        let mut half_start = [0usize; 2];
         let first_width = widths.len();
-        for k in [li, li + 2] {
+        for (h, k) in [li, li + 2].into_iter().enumerate() {
+            half_start[h] = points.len();
             let a = arm_dir(&dirs, k);
             let n = perp(a);
             let arm = arms[k];
@@ -1380,6 +1407,13 @@ fn fit_lines(
         }
         let (fitted, inliers) = pr::robust_line(&points)?;
         rms = rms.max(pr::line_rms(&inliers, fitted));
+        let (near, far) = points.split_at(half_start[1]);
+        let halves = (near.len().min(far.len()) >= 6)
+            .then(|| pr::robust_line(near).zip(pr::robust_line(far)))
+            .flatten();
+        if let Some(((a, _), (b, _))) = halves {
+            bend = bend.max((a.1 .0 * b.1 .1 - a.1 .1 * b.1 .0).abs().asin());
+        }
         // Outliers count against coverage: under MIN_INLIER_SHARE fails it.
         let share = inliers.len() as f64 / points.len() as f64;
         coverage = coverage.min(share / MIN_INLIER_SHARE * MIN_COVERAGE);
@@ -1395,6 +1429,7 @@ fn fit_lines(
         bar_widths,
         coverage,
         rms,
+        bend,
     })
 }
 

@@ -193,8 +193,8 @@ fn two_stripe_corners_touching_are_not_a_checker() {
     assert!(found.is_empty(), "{found:?}");
 }
 
-/// A panel grid's crossing at the edge of an object lying over it: one of
-/// its "bars" bends 37.6 degrees at the crossing, where a printed cross's
+/// A cross where checker paving meets a panel grid: one of its "bars"
+/// bends 37.6 degrees at the crossing, where a printed cross's
 /// bars run straight through it (3.2 degrees at most on the nine crosshair
 /// sets, in shadow too). Clutter scene 2313, the window that holds it (at
 /// 1230.4, 526.7 in the frame).

@@ -88,12 +88,12 @@ const MAX_FIT_RMS_PX: f64 = 0.55;
 /// boundary, each fitted on its own arm (a checker's only where its
 /// quadrant pairs are even, within 0.5 of the strength). Measured on the
 /// nine crosshair sets (`printed_misses crosshair SEED 4` with
-/// `ACCEPTED=1`): 1225 accepted true cross candidates bent 3.17 degrees at
-/// most, shadow or not; 1946 true checker candidates with even pairs, 4.43
-/// (those in shadow, up to 11.8). Clutter: two stripes' corners touching
-/// (held-out scene 2804) 15.0, two dark discs side by side 9.8, a junction
-/// of several objects 11.2 (uneven 0.32), a panel grid's crossing at the
-/// edge of an object lying over it 37.6 (a cross).
+/// `ACCEPTED=1`): 1225 cross candidates accepted there (every tile and
+/// look) bent 3.17 degrees at most, shadow or not; 1946 checker candidates
+/// with even pairs, 4.43 (those in shadow, up to 11.8). Clutter: two stripes' corners touching
+/// (held-out scene 2804) 15.0, the saddle between two touching manholes
+/// (scene 1610) 9.8, a junction of several objects (scene 1812) 11.2
+/// (uneven 0.32), a cross where paving meets a panel grid (scene 2313) 37.6.
 const MAX_BEND_DEG: f64 = 8.0;
 /// Radius, in size guesses, searched for a shadow edge across a failed
 /// candidate: the target's square (corners at 0.71) and ground around it.
@@ -539,7 +539,7 @@ impl CrosshairDetector {
                 // A printed boundary runs straight through the centre: each
                 // line's two halves, fitted apart, agree. Two objects'
                 // corners meeting (a stripe's end touching another's side,
-                // two discs side by side) bend it. A shadow across a
+                // two manholes touching) bend it. A shadow across a
                 // checker bends the fitted halves too, and leaves its pairs
                 // uneven.
                 let uneven = (q0 - q2).abs().max((q1 - q3).abs());

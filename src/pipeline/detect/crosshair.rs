@@ -90,10 +90,11 @@ const MAX_FIT_RMS_PX: f64 = 0.55;
 /// nine crosshair sets (`printed_misses crosshair SEED 4` with
 /// `ACCEPTED=1`): 1225 cross candidates accepted there (every tile and
 /// look) bent 3.17 degrees at most, shadow or not; 1946 checker candidates
-/// with even pairs, 4.43 (those in shadow, up to 11.8). Clutter: two stripes' corners touching
-/// (held-out scene 2804) 15.0, the saddle between two touching manholes
-/// (scene 1610) 9.8, a junction of several objects (scene 1812) 11.2
-/// (uneven 0.32), a cross where paving meets a panel grid (scene 2313) 37.6.
+/// with even pairs, 4.43 (those in shadow, up to 11.8). Clutter: two
+/// stripes' corners touching (held-out scene 2804) 15.0, the saddle between
+/// two touching manholes (scene 1610) 9.8, a junction of several objects
+/// (scene 1812) 11.2 (uneven 0.32), a cross where paving meets a panel grid
+/// (scene 2313) 37.6.
 const MAX_BEND_DEG: f64 = 8.0;
 /// Radius, in size guesses, searched for a shadow edge across a failed
 /// candidate: the target's square (corners at 0.71) and ground around it.
@@ -1364,10 +1365,11 @@ fn fit_lines(
     let mut profile = Vec::new();
     for (li, line) in lines.iter_mut().enumerate() {
         let mut points = Vec::new();
-        let mut half_start = [0usize; 2];
+        // Where the second arm's points start.
+        let mut split = 0;
         let first_width = widths.len();
-        for (h, k) in [li, li + 2].into_iter().enumerate() {
-            half_start[h] = points.len();
+        for k in [li, li + 2] {
+            split = points.len();
             let a = arm_dir(&dirs, k);
             let n = perp(a);
             let arm = arms[k];
@@ -1416,7 +1418,7 @@ fn fit_lines(
         }
         let (fitted, inliers) = pr::robust_line(&points)?;
         rms = rms.max(pr::line_rms(&inliers, fitted));
-        let (near, far) = points.split_at(half_start[1]);
+        let (near, far) = points.split_at(split);
         let halves = (near.len().min(far.len()) >= 6)
             .then(|| pr::robust_line(near).zip(pr::robust_line(far)))
             .flatten();

@@ -137,11 +137,8 @@ fn lookalike_clutter_gives_no_detection() {
     }
 }
 
-/// The 640 px square at the bottom right corner of clutter scene `seed`,
-/// searched for crosshairs; what is found there.
-fn crosshairs_in_corner(seed: u64) -> Vec<((f64, f64), f64)> {
-    crosshairs_in_window(seed, (2400 - 640, 1800 - 640))
-}
+/// The top left corner of a clutter scene's 640 px bottom right corner.
+const CORNER: (usize, usize) = (2400 - 640, 1800 - 640);
 
 /// The crosshair detections on the 640 px window from `(x0, y0)` of
 /// clutter scene `seed` (2400 x 1800).
@@ -167,7 +164,7 @@ fn crosshairs_in_window(seed: u64, (x0, y0): (usize, usize)) -> Vec<((f64, f64),
 /// paving block taken for a checker.
 #[test]
 fn a_road_marking_cross_is_not_taken_on_a_second_look() {
-    let found = crosshairs_in_corner(2503);
+    let found = crosshairs_in_window(2503, CORNER);
     assert!(found.is_empty(), "{found:?}");
 }
 
@@ -178,7 +175,7 @@ fn a_road_marking_cross_is_not_taken_on_a_second_look() {
 /// that holds the crossing (at 2364.9, 1739.0 in the frame).
 #[test]
 fn a_grid_crossing_with_a_stripe_over_a_cell_is_not_a_cross() {
-    let found = crosshairs_in_corner(2601);
+    let found = crosshairs_in_window(2601, CORNER);
     assert!(found.is_empty(), "{found:?}");
 }
 

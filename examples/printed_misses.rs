@@ -169,6 +169,15 @@ fn main() {
             }
         }
         for t in &truth {
+            if std::env::var("ACCEPTED").is_ok() {
+                eprintln!(
+                    "  TRUTH {:.2} {:.2} {:.1} {:?}",
+                    t.center.0, t.center.1, t.side_px, scene.printed[t.id as usize].design
+                );
+                if std::env::var("TRUTHCROP").is_ok() {
+                    crop(&img, t.center, (1.5 * t.side_px) as usize, &format!("truth{seed}_{}", t.id));
+                }
+            }
             total += 1;
             let hit = result.targets.iter().find(|d| {
                 let c = d.detection.center;

@@ -77,6 +77,12 @@ const MIN_LEAD_FLIPS: usize = 4;
 /// Paving's tiles right past a checker arm's end repeat the quadrants'
 /// levels swapped, to this fraction of the quadrants' difference.
 const TILE_LEVEL_TOLERANCE: f64 = 0.3;
+/// Samples of 15, one tile past a checker's outer side, that must show the
+/// other colour's level for that band to be a paving tile. On the nine
+/// crosshair sets' targets and four fresh sets', no target's every
+/// accepted look had such tiles past both colours at 8 to 12 (with the
+/// band beyond ending at half); at 6, two did.
+const TILE_BAND_HITS: usize = 10;
 /// Largest RMS distance of edge points from their fitted line: above it the
 /// "lines" are not straight (a fold, an object on the target, clutter).
 /// Measured on 1060 true detections (40-200 px, blur up to 1.4 px, motion
@@ -107,11 +113,13 @@ const SHADOW_SEARCH: f64 = 1.1;
 /// second look at each cost 3.5x the crosshair mode's time. Paving is left
 /// too: with a shadow lifted, two paving junctions on 28 clutter frames
 /// passed as checkers, and no target was lost without it on 28 frames.
-/// So is the bar ratio, a median over profiles along both whole bars: on
+/// So are the tiles around a checker: with a shadow lifted, a paving
+/// block in shadow (clutter scene 2615) passed on the second look. So is
+/// the bar ratio, a median over profiles along both whole bars: on
 /// the nine crosshair sets no target failed it on the first look and passed
 /// on the second, while a road-marking cross (bars over 7x longer than
 /// wide, held-out clutter scene 2503) measured 6.0 on a copy with an edge lifted.
-const NOT_SHADOW: [&str; 10] = [
+const NOT_SHADOW: [&str; 11] = [
     "too small",
     "inner ring",
     "outer ring",
@@ -121,6 +129,7 @@ const NOT_SHADOW: [&str; 10] = [
     "parallel lines",
     "checker polarity",
     "paving",
+    "tiles around",
     "bar ratio",
 ];
 /// Half side, in sizes (the guessed, then the found if larger), of the copy
@@ -536,6 +545,13 @@ impl CrosshairDetector {
                 }
                 if !checker_quadrants_uniform(img, centre, &dirs, &lengths, strength) {
                     return Err("quadrants not uniform");
+                }
+                // Paving whose boundaries' continuations past the arms are
+                // hidden (under other objects, in shadow) may still show a
+                // tile past a light quadrant's side and one past a dark
+                // one's.
+                if tiles_around(img, centre, &dirs, &lengths, &quadrants) {
+                    return Err("tiles around");
                 }
                 // A printed boundary runs straight through the centre: each
                 // line's two halves, fitted apart, agree. Two objects'
@@ -1748,6 +1764,59 @@ fn shadow_explains_quadrants(
         .iter()
         .fold((f64::MAX, f64::MIN), |(a, b), &r| (a.min(r), b.max(r)));
     hi < 1.0 && hi - lo <= 0.6 * (1.0 - hi)
+}
+
+/// Whether paving's tiles lie past a checker's outer sides, past a light
+/// quadrant and past a dark one: a band one tile out that shows the other
+/// colour's level for [`TILE_BAND_HITS`] of its 15 samples (three rows out,
+/// five along the side), and a band one tile further out that does not go
+/// on at that level (fewer than half its samples within the same
+/// tolerance). Ground beside a target goes on; a tile ends. Tolerance: 0.3
+/// of the quadrants' difference.
+fn tiles_around(
+    img: &GreyView,
+    c: Pt,
+    dirs: &[Pt; 2],
+    lengths: &[f64; 4],
+    quadrants: &[f64; 4],
+) -> bool {
+    let light0 = quadrants[0] + quadrants[2] > quadrants[1] + quadrants[3];
+    let even = (quadrants[0] + quadrants[2]) / 2.0;
+    let odd = (quadrants[1] + quadrants[3]) / 2.0;
+    let tolerance = 0.3 * (even - odd).abs();
+    // Tiles found past [dark, light] quadrants.
+    let mut past = [false; 2];
+    for k in 0..4 {
+        let other = if k % 2 == 0 { odd } else { even };
+        let light = (k % 2 == 0) == light0;
+        let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
+        let (la, lb) = (lengths[k], lengths[(k + 1) % 4]);
+        // The quadrant's two outer sides: out along one arm, along the other.
+        for (out, reach, along, span) in [(a, la, b, lb), (b, lb, a, la)] {
+            let band = |from: f64| -> Option<Vec<f64>> {
+                let mut v = Vec::with_capacity(15);
+                for f in [0.0, 0.25, 0.5] {
+                    let d = from + (0.15 * reach).max(3.0) + f * reach;
+                    for g in [0.2, 0.35, 0.5, 0.65, 0.8] {
+                        let p = add(add(c, out, d), along, g * span);
+                        v.push(img.sample(p.0, p.1)?);
+                    }
+                }
+                Some(v)
+            };
+            let near = |v: &[f64], level: f64| v.iter().filter(|x| (*x - level).abs() < tolerance).count();
+            let Some(first) = band(reach) else { continue };
+            if near(&first, other) < TILE_BAND_HITS {
+                continue;
+            }
+            let level = pr::quantile(&first, 0.5);
+            let Some(second) = band(2.0 * reach) else { continue };
+            if near(&second, level) * 2 < second.len() {
+                past[light as usize] = true;
+            }
+        }
+    }
+    past[0] && past[1]
 }
 
 /// Mean grey level of each quadrant, between arm k and arm k+1, sampled on

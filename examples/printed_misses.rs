@@ -7,9 +7,12 @@
 //! `EXPECT_PX=60` narrows the size range as a survey's target size and GSD
 //! would (60 px x/÷ 1.5); `RMS=1` prints every hit, `BOARD=1` the board's
 //! sides of imprecise ones, `ACCEPTED=1` every candidate the detector
-//! accepted (as clutter frames always do), `LIFTED=1` the reason of each
+//! accepted (as clutter frames always do) and each target's centre, size
+//! and design (`TRUTH` lines; candidates are in tile coordinates, tiles
+//! starting 352 px apart on these frames), `LIFTED=1` the reason of each
 //! rejected candidate's second look (shadow lifted) next to its first's,
-//! `MISSCROP=1` a crop of each missed target (`/tmp/crops/miss*.png`).
+//! `MISSCROP=1` a crop of each missed target (`/tmp/crops/miss*.png`),
+//! `TRUTHCROP=1` (with `ACCEPTED=1`) of every target.
 
 use std::collections::BTreeMap;
 use std::io::BufRead;
@@ -175,7 +178,12 @@ fn main() {
                     t.center.0, t.center.1, t.side_px, scene.printed[t.id as usize].design
                 );
                 if std::env::var("TRUTHCROP").is_ok() {
-                    crop(&img, t.center, (1.5 * t.side_px) as usize, &format!("truth{seed}_{}", t.id));
+                    crop(
+                        &img,
+                        t.center,
+                        (1.5 * t.side_px) as usize,
+                        &format!("truth{seed}_{}", t.id),
+                    );
                 }
             }
             total += 1;

@@ -200,3 +200,23 @@ fn a_cross_whose_bar_bends_at_the_crossing_is_not_a_cross() {
     let found = crosshairs_in_window(2313, (900, 200));
     assert!(found.is_empty(), "{found:?}");
 }
+
+/// A block of checker paving whose boundaries' continuations past the arms
+/// are hidden, but whose tiles show past a light quadrant's side and past a
+/// dark one's, each ending a tile further out, is paving: ground beside a
+/// printed checker goes on. Clutter scene 1200, the window that holds the
+/// block (at 1880.0, 1306.2 in the frame).
+#[test]
+fn paving_tiles_past_both_colours_sides_are_not_a_checker() {
+    let found = crosshairs_in_window(1200, (1560, 1000));
+    assert!(found.is_empty(), "{found:?}");
+}
+
+/// The same in shadow: a paving block that a shadow crosses is not taken on
+/// a second look with the shadow lifted either. Clutter scene 2615, the
+/// window that holds the block (at 1172.9, 1338.5 in the frame).
+#[test]
+fn paving_tiles_in_shadow_are_not_a_checker_on_a_second_look() {
+    let found = crosshairs_in_window(2615, (850, 1018));
+    assert!(found.is_empty(), "{found:?}");
+}

@@ -1804,13 +1804,16 @@ fn tiles_around(
                 }
                 Some(v)
             };
-            let near = |v: &[f64], level: f64| v.iter().filter(|x| (*x - level).abs() < tolerance).count();
+            let near =
+                |v: &[f64], level: f64| v.iter().filter(|x| (*x - level).abs() < tolerance).count();
             let Some(first) = band(reach) else { continue };
             if near(&first, other) < TILE_BAND_HITS {
                 continue;
             }
             let level = pr::quantile(&first, 0.5);
-            let Some(second) = band(2.0 * reach) else { continue };
+            let Some(second) = band(2.0 * reach) else {
+                continue;
+            };
             if near(&second, level) * 2 < second.len() {
                 past[light as usize] = true;
             }
@@ -2516,5 +2519,68 @@ mod tests {
             }
         }
         assert!(first_failed >= 15, "first looks failed: {first_failed}");
+    }
+
+    #[test]
+    fn tiles_around_a_checker_end_a_tile_out_where_ground_goes_on() {
+        // A 2x2 checker of 30 px quadrants at (160, 160), light where x
+        // and y have one sign, amid light (200) and dark (50) grey.
+        let checker = |x: f64, y: f64| if (x > 0.0) == (y > 0.0) { 200.0 } else { 50.0 };
+        let around = |data: &[u8]| {
+            let img = GreyView {
+                data,
+                width: 320,
+                height: 320,
+                stride: 320,
+            };
+            tiles_around(
+                &img,
+                (160.0, 160.0),
+                &[(1.0, 0.0), (0.0, 1.0)],
+                &[30.0; 4],
+                &[200.0, 50.0, 200.0, 50.0],
+            )
+        };
+        // Paving: one ring of tiles past the block, then grey ground.
+        let paving = render_image(320, |x, y| {
+            let (u, v) = (x - 160.0, y - 160.0);
+            if u.abs() >= 60.0 || v.abs() >= 60.0 {
+                return 128.0;
+            }
+            let (i, j) = ((u / 30.0).floor() as i64, (v / 30.0).floor() as i64);
+            if (i + j).rem_euclid(2) == 0 {
+                200.0
+            } else {
+                50.0
+            }
+        });
+        assert!(around(&paving));
+        // The same levels past the sides, but ground that goes on: light
+        // left of the checker, dark right of it.
+        let ground = render_image(320, |x, y| {
+            let (u, v) = (x - 160.0, y - 160.0);
+            if u.abs() < 30.0 && v.abs() < 30.0 {
+                checker(u, v)
+            } else if u < 0.0 {
+                200.0
+            } else {
+                50.0
+            }
+        });
+        assert!(!around(&ground));
+        // That ground ending a tile out, as paving does.
+        let ended = render_image(320, |x, y| {
+            let (u, v) = (x - 160.0, y - 160.0);
+            if u.abs() < 30.0 && v.abs() < 30.0 {
+                checker(u, v)
+            } else if u.abs() >= 60.0 || v.abs() >= 60.0 {
+                128.0
+            } else if u < 0.0 {
+                200.0
+            } else {
+                50.0
+            }
+        });
+        assert!(around(&ended));
     }
 }

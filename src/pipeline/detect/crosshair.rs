@@ -1787,37 +1787,35 @@ fn tiles_around(
     let tolerance = 0.3 * (even - odd).abs();
     // Tiles found past [dark, light] quadrants.
     let mut past = [false; 2];
-    for k in 0..4 {
-        let other = if k % 2 == 0 { odd } else { even };
-        let light = (k % 2 == 0) == light0;
-        let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
-        let (la, lb) = (lengths[k], lengths[(k + 1) % 4]);
-        // The quadrant's two outer sides: out along one arm, along the other.
-        for (out, reach, along, span) in [(a, la, b, lb), (b, lb, a, la)] {
-            let band = |from: f64| -> Option<Vec<f64>> {
-                let mut v = Vec::with_capacity(15);
-                for f in [0.0, 0.25, 0.5] {
-                    let d = from + (0.15 * reach).max(3.0) + f * reach;
-                    for g in [0.2, 0.35, 0.5, 0.65, 0.8] {
-                        let p = add(add(c, out, d), along, g * span);
-                        v.push(img.sample(p.0, p.1)?);
-                    }
+    // Half-side i lies past arm i / 2's end, beside quadrant i / 2 (the one
+    // towards the next arm) or the one before it.
+    for (i, (out, reach, along, span)) in half_sides(dirs, lengths).enumerate() {
+        let q = if i % 2 == 0 { i / 2 } else { (i / 2 + 3) % 4 };
+        let other = if q % 2 == 0 { odd } else { even };
+        let light = (q % 2 == 0) == light0;
+        let band = |from: f64| -> Option<Vec<f64>> {
+            let mut v = Vec::with_capacity(15);
+            for f in [0.0, 0.25, 0.5] {
+                let d = from + (0.15 * reach).max(3.0) + f * reach;
+                for g in [0.2, 0.35, 0.5, 0.65, 0.8] {
+                    let p = add(add(c, out, d), along, g * span);
+                    v.push(img.sample(p.0, p.1)?);
                 }
-                Some(v)
-            };
-            let near =
-                |v: &[f64], level: f64| v.iter().filter(|x| (*x - level).abs() < tolerance).count();
-            let Some(first) = band(reach) else { continue };
-            if near(&first, other) < TILE_BAND_HITS {
-                continue;
             }
-            let level = pr::quantile(&first, 0.5);
-            let Some(second) = band(2.0 * reach) else {
-                continue;
-            };
-            if near(&second, level) * 2 < second.len() {
-                past[light as usize] = true;
-            }
+            Some(v)
+        };
+        let near =
+            |v: &[f64], level: f64| v.iter().filter(|x| (*x - level).abs() < tolerance).count();
+        let Some(first) = band(reach) else { continue };
+        if near(&first, other) < TILE_BAND_HITS {
+            continue;
+        }
+        let level = pr::quantile(&first, 0.5);
+        let Some(second) = band(2.0 * reach) else {
+            continue;
+        };
+        if near(&second, level) * 2 < second.len() {
+            past[light as usize] = true;
         }
     }
     past[0] && past[1]

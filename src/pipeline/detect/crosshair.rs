@@ -120,7 +120,11 @@ const SHADOW_SEARCH: f64 = 1.1;
 /// the nine crosshair sets no target failed it on the first look and passed
 /// on the second, while a road-marking cross (bars over 7x longer than
 /// wide, held-out clutter scene 2503) measured 6.0 on a copy with an edge lifted.
-const NOT_SHADOW: [&str; 11] = [
+/// So is structure running on past two arms: on the thirteen crosshair sets
+/// (1560 targets) no target failed it on the first look and passed on the
+/// second, while two panel-grid crossings did (held-out clutter scenes 3108
+/// and 3202), the copy's lifted edge cutting the bars' continuation off.
+const NOT_SHADOW: [&str; 12] = [
     "too small",
     "inner ring",
     "outer ring",
@@ -132,6 +136,7 @@ const NOT_SHADOW: [&str; 11] = [
     "paving",
     "tiles around",
     "bar ratio",
+    "structure runs on",
 ];
 /// Half side, in sizes (the guessed, then the found if larger), of the copy
 /// with the shadow lifted: the arms' walk and the ground checked past their

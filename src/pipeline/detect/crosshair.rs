@@ -1170,6 +1170,23 @@ fn measure_arm(
             t += 1.0;
         }
         if aligned * 2 > tried {
+            // Ground right past the arm's end (no edge on the arm's line
+            // across the gap) and the pattern only further out: paving
+            // lying near the target along the arm's line, not tiles meeting
+            // the target's at the arm's end (crosshair frame 2701: a paving
+            // block 16 px past a checker's corner).
+            if lead == 0
+                && !sides.0.is_empty()
+                && gap_is_ground(
+                    img,
+                    (c, a),
+                    (length, from),
+                    o,
+                    (pr::quantile(&sides.0, 0.5), pr::quantile(&sides.1, 0.5)),
+                )
+            {
+                return ArmEnd::Ends(arm);
+            }
             return ArmEnd::Flips;
         }
         if edge_crosses_target(img, c, &edge, size_guess, o, 0.7 * strength) {
@@ -1181,6 +1198,41 @@ fn measure_arm(
         return ArmEnd::RunsOn(Some(arm));
     }
     ArmEnd::Ends(arm)
+}
+
+/// Whether a checker arm's line shows ground from 3 px past the arm's end
+/// at `length` to `to` px from `c`, on 2 samples at least: either side `o`
+/// px off the line at one level (no edge), and that level unlike both
+/// quadrants' beside the arm, `(left, right)` (by a quarter of their
+/// difference; paving rows set off from each other put a tile there).
+fn gap_is_ground(
+    img: &GreyView,
+    (c, a): (Pt, Pt),
+    (length, to): (f64, f64),
+    o: f64,
+    (left, right): (f64, f64),
+) -> bool {
+    let diff = (left - right).abs();
+    let mut n = 0;
+    let mut t = length + 3.0;
+    while t < to {
+        let (Some(l), Some(r)) = (
+            beside_arm(img, (c, a), t, o),
+            beside_arm(img, (c, a), t, -o),
+        ) else {
+            return false;
+        };
+        let level = (l + r) / 2.0;
+        if (l - r).abs() >= 0.3 * diff
+            || (level - left).abs() < 0.25 * diff
+            || (level - right).abs() < 0.25 * diff
+        {
+            return false;
+        }
+        n += 1;
+        t += 1.0;
+    }
+    n >= 2
 }
 
 /// The grey level `t` px out along the arm `a` from `c` and `s` px across
@@ -1200,8 +1252,10 @@ fn extent(v: &[f64]) -> (f64, f64) {
 /// `end` px from the centre `c` along `a`) is the edge of something lying
 /// against the board: one side keeps its quadrant's level all along (a dark
 /// object against a dark quadrant), the other is ground of one level,
-/// unlike its quadrant's. Paving's boundary running on passes tiles of
-/// both levels.
+/// unlike its quadrant's; or each side is of one level of its own, the two
+/// apart and not the quadrants' levels swapped (an object darker than the
+/// dark quadrant, beside ground). Paving's boundary running on passes
+/// tiles of both levels.
 fn object_against_board(img: &GreyView, c: Pt, a: Pt, board: f64, end: f64) -> bool {
     let o = (0.1 * board).max(3.0);
     // Either side at `o` and `2 o` from the line: a level taken off an
@@ -1243,7 +1297,18 @@ fn object_against_board(img: &GreyView, c: Pt, a: Pt, board: f64, end: f64) -> b
         (pr::quantile(v, 0.5) - level).abs() > 0.4 * contrast
             && pr::quantile(v, 0.9) - pr::quantile(v, 0.1) < 0.25 * contrast
     };
-    (keeps(&past.0, q.0) && ground(&past.1, q.1)) || (keeps(&past.1, q.1) && ground(&past.0, q.0))
+    if (keeps(&past.0, q.0) && ground(&past.1, q.1))
+        || (keeps(&past.1, q.1) && ground(&past.0, q.0))
+    {
+        return true;
+    }
+    // An object of its own level (a dark disc darker than the dark
+    // quadrant) on one side and ground on the other: both sides of one
+    // level each, apart, and not the quadrants swapped (paving's next tiles).
+    let m = (pr::quantile(&past.0, 0.5), pr::quantile(&past.1, 0.5));
+    let uniform = |v: &[f64]| pr::quantile(v, 0.9) - pr::quantile(v, 0.1) < 0.25 * contrast;
+    let swapped = (m.0 - q.1).abs() < 0.25 * contrast && (m.1 - q.0).abs() < 0.25 * contrast;
+    uniform(&past.0) && uniform(&past.1) && (m.0 - m.1).abs() > 0.4 * contrast && !swapped
 }
 
 /// Whether a checker arm's boundary runs on, right past its end, between
@@ -2394,6 +2459,73 @@ mod tests {
         let found = analyse_image(&data, 320, 100.0).expect("a checker");
         assert_centre(&found, (160.0, 160.0));
         assert!((found.size - 100.0).abs() < 4.0, "size {}", found.size);
+    }
+
+    #[test]
+    fn a_checker_with_a_darker_disc_against_one_arm_is_found() {
+        // A 2x2 checker (100 px, greys 205 and 90) on ground of 128, and a
+        // disc darker than its dark quadrant (30, radius 40) partly under
+        // the board's lower left quadrant, its right edge within 2.3 px of
+        // the downward arm's line for 32 px past the board (crosshair frame
+        // 2603's missed target). Past the board that arm's boundary runs
+        // on between the disc and the ground, each of one level: an object
+        // against the board, though not at its quadrant's level.
+        let data = render_image(320, |x, y| {
+            let (dx, dy) = (x - 160.0, y - 160.0);
+            if dx.abs() < 50.0 && dy.abs() < 50.0 {
+                return if (dx > 0.0) == (dy > 0.0) {
+                    205.0
+                } else {
+                    90.0
+                };
+            }
+            if (x - 122.0).hypot(y - 222.0) < 40.0 {
+                return 30.0;
+            }
+            128.0
+        });
+        let found = analyse_image(&data, 320, 100.0).expect("a checker");
+        assert_centre(&found, (160.0, 160.0));
+        assert!((found.size - 100.0).abs() < 4.0, "size {}", found.size);
+    }
+
+    #[test]
+    fn paving_a_gap_past_a_checker_along_its_arm_is_not_its_tiles() {
+        // An 80 px checker (greys 170 and 90) on ground of 128, and paving
+        // of 30 px tiles of the same greys from 16 px past its right arm's
+        // end, one tile boundary on that arm's line with the colours
+        // swapped (crosshair frame 2701's missed target). Ground fills the
+        // gap: paving lying near the target, not tiles meeting its own.
+        // With no gap it is paving.
+        for gap in [16.0, 0.0] {
+            let data = render_image(320, |x, y| {
+                let (dx, dy) = (x - 160.0, y - 160.0);
+                if dx.abs() < 40.0 && dy.abs() < 40.0 {
+                    return if (dx > 0.0) == (dy > 0.0) {
+                        170.0
+                    } else {
+                        90.0
+                    };
+                }
+                let px = dx - 40.0 - gap;
+                if (0.0..90.0).contains(&px) && dy.abs() < 60.0 {
+                    let (i, j) = ((px / 30.0).floor(), (dy / 30.0).floor());
+                    return if (i + j).rem_euclid(2.0) == 0.0 {
+                        90.0
+                    } else {
+                        170.0
+                    };
+                }
+                128.0
+            });
+            let found = analyse_image(&data, 320, 80.0);
+            if gap > 0.0 {
+                let f = found.expect("a checker with paving beyond a gap");
+                assert_centre(&f, (160.0, 160.0));
+            } else {
+                assert_eq!(found.err(), Some("paving"));
+            }
+        }
     }
 
     #[test]

@@ -2434,6 +2434,17 @@ mod tests {
         assert_centre(&f, (100.0, 100.0));
     }
 
+    /// A 2x2 checker's grey at `(dx, dy)` from its centre, `half` its
+    /// half side: `light` where both are of one sign, else `dark`; `None`
+    /// off the board.
+    fn checker_grey(dx: f64, dy: f64, half: f64, (light, dark): (f64, f64)) -> Option<f64> {
+        (dx.abs() < half && dy.abs() < half).then_some(if (dx > 0.0) == (dy > 0.0) {
+            light
+        } else {
+            dark
+        })
+    }
+
     #[test]
     fn a_checker_with_a_dark_object_against_one_quadrant_is_found() {
         // A 2x2 checker (100 px, x and y from 110 to 210) on grey ground,
@@ -2444,12 +2455,8 @@ mod tests {
         // arm's, as for an arm running on past the reach.
         let data = render_image(320, |x, y| {
             let (dx, dy) = (x - 160.0, y - 160.0);
-            if dx.abs() < 50.0 && dy.abs() < 50.0 {
-                return if (dx > 0.0) == (dy > 0.0) {
-                    220.0
-                } else {
-                    30.0
-                };
+            if let Some(g) = checker_grey(dx, dy, 50.0, (220.0, 30.0)) {
+                return g;
             }
             if (-100.0..-50.0).contains(&dx) && (0.0..40.0).contains(&dy) {
                 return 25.0;
@@ -2472,12 +2479,8 @@ mod tests {
         // against the board, though not at its quadrant's level.
         let data = render_image(320, |x, y| {
             let (dx, dy) = (x - 160.0, y - 160.0);
-            if dx.abs() < 50.0 && dy.abs() < 50.0 {
-                return if (dx > 0.0) == (dy > 0.0) {
-                    205.0
-                } else {
-                    90.0
-                };
+            if let Some(g) = checker_grey(dx, dy, 50.0, (205.0, 90.0)) {
+                return g;
             }
             if (x - 122.0).hypot(y - 222.0) < 40.0 {
                 return 30.0;
@@ -2500,12 +2503,8 @@ mod tests {
         for gap in [16.0, 0.0] {
             let data = render_image(320, |x, y| {
                 let (dx, dy) = (x - 160.0, y - 160.0);
-                if dx.abs() < 40.0 && dy.abs() < 40.0 {
-                    return if (dx > 0.0) == (dy > 0.0) {
-                        170.0
-                    } else {
-                        90.0
-                    };
+                if let Some(g) = checker_grey(dx, dy, 40.0, (170.0, 90.0)) {
+                    return g;
                 }
                 let px = dx - 40.0 - gap;
                 if (0.0..90.0).contains(&px) && dy.abs() < 60.0 {

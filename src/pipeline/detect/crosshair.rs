@@ -1170,8 +1170,9 @@ fn measure_arm(
             t += 1.0;
         }
         if aligned * 2 > tried {
-            // Ground right past the arm's end (no edge on the arm's line
-            // across the gap) and the pattern only further out: paving
+            // Ground right past the arm's end (across the gap no edge on
+            // the arm's line, at neither quadrant's level) and the pattern
+            // only further out: paving
             // lying near the target along the arm's line, not tiles meeting
             // the target's at the arm's end (crosshair frame 2701: a paving
             // block 16 px past a checker's corner).

@@ -1294,10 +1294,10 @@ fn object_against_board(img: &GreyView, c: Pt, a: Pt, board: f64, end: f64) -> b
             .iter()
             .all(|&f| (pr::quantile(v, f) - level).abs() < 0.25 * contrast)
     };
-    let ground = |v: &[f64], level: f64| {
-        (pr::quantile(v, 0.5) - level).abs() > 0.4 * contrast
-            && pr::quantile(v, 0.9) - pr::quantile(v, 0.1) < 0.25 * contrast
-    };
+    // One level: its spread under a quarter of the quadrants' difference.
+    let uniform = |v: &[f64]| pr::quantile(v, 0.9) - pr::quantile(v, 0.1) < 0.25 * contrast;
+    let ground =
+        |v: &[f64], level: f64| (pr::quantile(v, 0.5) - level).abs() > 0.4 * contrast && uniform(v);
     if (keeps(&past.0, q.0) && ground(&past.1, q.1))
         || (keeps(&past.1, q.1) && ground(&past.0, q.0))
     {
@@ -1307,7 +1307,6 @@ fn object_against_board(img: &GreyView, c: Pt, a: Pt, board: f64, end: f64) -> b
     // quadrant) on one side and ground on the other: both sides of one
     // level each, apart, and not the quadrants swapped (paving's next tiles).
     let m = (pr::quantile(&past.0, 0.5), pr::quantile(&past.1, 0.5));
-    let uniform = |v: &[f64]| pr::quantile(v, 0.9) - pr::quantile(v, 0.1) < 0.25 * contrast;
     let swapped = (m.0 - q.1).abs() < 0.25 * contrast && (m.1 - q.0).abs() < 0.25 * contrast;
     uniform(&past.0) && uniform(&past.1) && (m.0 - m.1).abs() > 0.4 * contrast && !swapped
 }
@@ -2446,6 +2445,24 @@ mod tests {
         })
     }
 
+    /// A 100 px checker of `greys` centred at (160, 160) on `ground`, with
+    /// `object` (its grey where it lies) beside the board, is found there at
+    /// its own size.
+    fn a_checker_beside_an_object_is_found(
+        greys: (f64, f64),
+        ground: f64,
+        object: impl Fn(f64, f64) -> Option<f64>,
+    ) {
+        let data = render_image(320, |x, y| {
+            checker_grey(x - 160.0, y - 160.0, 50.0, greys)
+                .or_else(|| object(x, y))
+                .unwrap_or(ground)
+        });
+        let found = analyse_image(&data, 320, 100.0).expect("a checker");
+        assert_centre(&found, (160.0, 160.0));
+        assert!((found.size - 100.0).abs() < 4.0, "size {}", found.size);
+    }
+
     #[test]
     fn a_checker_with_a_dark_object_against_one_quadrant_is_found() {
         // A 2x2 checker (100 px, x and y from 110 to 210) on grey ground,
@@ -2454,19 +2471,10 @@ mod tests {
         // to the left runs on as the object's edge against the ground, to
         // twice the other arms' length. Its length is then the opposite
         // arm's, as for an arm running on past the reach.
-        let data = render_image(320, |x, y| {
+        a_checker_beside_an_object_is_found((220.0, 30.0), 120.0, |x, y| {
             let (dx, dy) = (x - 160.0, y - 160.0);
-            if let Some(g) = checker_grey(dx, dy, 50.0, (220.0, 30.0)) {
-                return g;
-            }
-            if (-100.0..-50.0).contains(&dx) && (0.0..40.0).contains(&dy) {
-                return 25.0;
-            }
-            120.0
+            ((-100.0..-50.0).contains(&dx) && (0.0..40.0).contains(&dy)).then_some(25.0)
         });
-        let found = analyse_image(&data, 320, 100.0).expect("a checker");
-        assert_centre(&found, (160.0, 160.0));
-        assert!((found.size - 100.0).abs() < 4.0, "size {}", found.size);
     }
 
     #[test]
@@ -2478,19 +2486,9 @@ mod tests {
         // 2603's missed target). Past the board that arm's boundary runs
         // on between the disc and the ground, each of one level: an object
         // against the board, though not at its quadrant's level.
-        let data = render_image(320, |x, y| {
-            let (dx, dy) = (x - 160.0, y - 160.0);
-            if let Some(g) = checker_grey(dx, dy, 50.0, (205.0, 90.0)) {
-                return g;
-            }
-            if (x - 122.0).hypot(y - 222.0) < 40.0 {
-                return 30.0;
-            }
-            128.0
+        a_checker_beside_an_object_is_found((205.0, 90.0), 128.0, |x, y| {
+            ((x - 122.0).hypot(y - 222.0) < 40.0).then_some(30.0)
         });
-        let found = analyse_image(&data, 320, 100.0).expect("a checker");
-        assert_centre(&found, (160.0, 160.0));
-        assert!((found.size - 100.0).abs() < 4.0, "size {}", found.size);
     }
 
     #[test]

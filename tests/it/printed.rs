@@ -3,7 +3,9 @@
 //! frames full of look-alikes.
 
 use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::{clutter_scene, printed_scene, render, write_image, SampleFormat};
+use gcp_tagger::synth::{
+    clutter_scene, printed_scene, render, write_image, SampleFormat, Scene, Truth,
+};
 
 use crate::support::*;
 
@@ -140,20 +142,72 @@ fn lookalike_clutter_gives_no_detection() {
 /// The top left corner of a clutter scene's 640 px bottom right corner.
 const CORNER: (usize, usize) = (2400 - 640, 1800 - 640);
 
+/// A detection's centre and size, in pixels.
+type Spot = ((f64, f64), f64);
+
 /// The crosshair detections on the 640 px window from `(x0, y0)` of
 /// clutter scene `seed` (2400 x 1800).
-fn crosshairs_in_window(seed: u64, (x0, y0): (usize, usize)) -> Vec<((f64, f64), f64)> {
+fn crosshairs_in_window(seed: u64, at: (usize, usize)) -> Vec<Spot> {
+    crosshairs_in_scene_window(&clutter_scene(2400, 1800, seed), at).0
+}
+
+/// The crosshair detections on the 640 px window from `(x0, y0)` of
+/// `scene`, and the scene's truths, both in the window's pixels.
+fn crosshairs_in_scene_window(scene: &Scene, (x0, y0): (usize, usize)) -> (Vec<Spot>, Vec<Truth>) {
     let dir = tempfile::tempdir().unwrap();
-    let (img, _) = render(&clutter_scene(2400, 1800, seed)).expect("render");
+    let (img, truths) = render(scene).expect("render");
     let crop = img.window(x0, y0, 640, 640);
-    let path = dir.path().join(format!("clutter{seed}-{x0}-{y0}.png"));
+    let path = dir
+        .path()
+        .join(format!("scene{}-{x0}-{y0}.png", scene.seed));
     write_image(&path, &crop, SampleFormat::Png, None).expect("write frame");
     let result = run_one(&path, &printed_options(&[MarkerType::Crosshair]));
-    result
+    let found = result
         .targets
         .iter()
         .map(|t| (t.detection.center, t.detection.size_px))
-        .collect()
+        .collect();
+    let truths = truths
+        .into_iter()
+        .map(|t| Truth {
+            center: (t.center.0 - x0 as f64, t.center.1 - y0 as f64),
+            ..t
+        })
+        .collect();
+    (found, truths)
+}
+
+/// A checker (64 px, print contrast 0.41) lying over a light disc: two of
+/// its arms end beside the disc's rim, which does not continue them as
+/// paving's tiles would, and every quadrant is of one level out to its
+/// sides with no tile past them. Crosshair frame 2203, the window that
+/// holds it (at 862, 1294 in the frame).
+#[test]
+fn a_checker_over_a_light_disc_is_found() {
+    let scene = printed_scene(2400, 1800, 30, MarkerType::Crosshair, (40.0, 120.0), 2203);
+    let (found, truths) = crosshairs_in_scene_window(&scene, (542, 974));
+    let truth = truths
+        .iter()
+        .find(|t| (t.center.0 - 320.0).abs() < 3.0 && (t.center.1 - 320.0).abs() < 3.0)
+        .expect("the checker's truth");
+    let hit = found
+        .iter()
+        .find(|(c, _)| (c.0 - truth.center.0).hypot(c.1 - truth.center.1) < 3.0)
+        .unwrap_or_else(|| panic!("the checker at {:?} in {found:?}", truth.center));
+    let error = (hit.0 .0 - truth.center.0).hypot(hit.0 .1 - truth.center.1);
+    assert!(error < 0.1, "centre error {error:.3} px");
+}
+
+/// Paving junctions partly hidden, one arm ending beside the object over
+/// the paving: a quadrant cut by an occluder's edge (clutter scene 735, at
+/// 1353.2, 1109.8 in the frame; scene 1111, at 371.5, 551.4) is not of one
+/// level out to its sides, as a printed checker's is.
+#[test]
+fn paving_partly_hidden_beside_an_object_is_not_a_checker() {
+    for (scene, at) in [(1111, (52, 231)), (735, (1033, 790))] {
+        let found = crosshairs_in_window(scene, at);
+        assert!(found.is_empty(), "scene {scene}: {found:?}");
+    }
 }
 
 /// A road-marking cross (white bars over 7x longer than wide on a dark patch,

@@ -1849,9 +1849,7 @@ fn quadrants_whole(
     lengths: &[f64; 4],
     quadrants: &[f64; 4],
 ) -> bool {
-    let even = (quadrants[0] + quadrants[2]) / 2.0;
-    let odd = (quadrants[1] + quadrants[3]) / 2.0;
-    let tolerance = 0.3 * (even - odd).abs();
+    let tolerance = 0.3 * pair_levels(quadrants).2;
     (0..4).all(|k| {
         let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
         let (la, lb) = (lengths[k], lengths[(k + 1) % 4]);
@@ -1933,9 +1931,8 @@ fn tiles_past(
     quadrants: &[f64; 4],
 ) -> [bool; 2] {
     let light0 = quadrants[0] + quadrants[2] > quadrants[1] + quadrants[3];
-    let even = (quadrants[0] + quadrants[2]) / 2.0;
-    let odd = (quadrants[1] + quadrants[3]) / 2.0;
-    let tolerance = 0.3 * (even - odd).abs();
+    let (even, odd, difference) = pair_levels(quadrants);
+    let tolerance = 0.3 * difference;
     // Tiles found past [dark, light] quadrants.
     let mut past = [false; 2];
     // Half-side i lies past arm i / 2's end, beside quadrant i / 2 (the one
@@ -1970,6 +1967,14 @@ fn tiles_past(
         }
     }
     past
+}
+
+/// A checker's quadrant levels paired: the mean of quadrants 0 and 2, of
+/// 1 and 3, and their difference.
+fn pair_levels(quadrants: &[f64; 4]) -> (f64, f64, f64) {
+    let even = (quadrants[0] + quadrants[2]) / 2.0;
+    let odd = (quadrants[1] + quadrants[3]) / 2.0;
+    (even, odd, (even - odd).abs())
 }
 
 /// Mean grey level of each quadrant, between arm k and arm k+1, sampled on

@@ -177,8 +177,8 @@ fn crosshairs_in_scene_window(scene: &Scene, (x0, y0): (usize, usize)) -> (Vec<S
     (found, truths)
 }
 
-/// A checker (64 px, print contrast 0.41) lying over a light disc: two of
-/// its arms end beside the disc's rim, which does not continue them as
+/// A checker (64 px, print contrast 0.41) lying over a light disc: one of
+/// its arms ends beside the disc's rim, which does not continue it as
 /// paving's tiles would, and every quadrant is of one level out to its
 /// sides with no tile past them. Crosshair frame 2203, the window that
 /// holds it (at 862, 1294 in the frame).

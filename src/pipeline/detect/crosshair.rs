@@ -988,7 +988,7 @@ enum ArmEnd {
     /// Past a checker arm's end, an edge of the other polarity off the
     /// arm's line that does not cross the whole target (a shadow's edge
     /// does): something lying beside the target, or a junction of
-    /// unrelated regions.
+    /// unrelated regions. With the arm as far as its own structure went.
     Beside(Arm),
     /// The arm leaves the tile before it can be judged.
     Unknown,

@@ -574,7 +574,8 @@ impl CrosshairDetector {
                 // hidden (under other objects, in shadow) may still show a
                 // tile past a light quadrant's side and one past a dark
                 // one's.
-                if tiles_around(img, centre, &dirs, &lengths, &quadrants) {
+                let tiles = tiles_past(img, centre, &dirs, &lengths, &quadrants);
+                if tiles == [true; 2] {
                     return Err("tiles around");
                 }
                 // A printed boundary runs straight through the centre: each
@@ -594,7 +595,7 @@ impl CrosshairDetector {
                 // any side. A shadow across a quadrant fails this; the
                 // second look, with the shadow lifted, sees the board whole.
                 if beside.is_some()
-                    && (tiles_past(img, centre, &dirs, &lengths, &quadrants) != [false; 2]
+                    && (tiles != [false; 2]
                         || !quadrants_whole(img, centre, &dirs, &lengths, &quadrants))
                 {
                     return Err("edge beside");
@@ -1206,10 +1207,10 @@ fn measure_arm(
         if aligned * 2 > tried {
             // Ground right past the arm's end (across the gap no edge on
             // the arm's line, at neither quadrant's level) and the pattern
-            // only further out: paving
-            // lying near the target along the arm's line, not tiles meeting
-            // the target's at the arm's end (crosshair frame 2701: a paving
-            // block 16 px past a checker's corner).
+            // only further out: paving lying near the target along the
+            // arm's line, not tiles meeting the target's at the arm's end
+            // (crosshair frame 2701: a paving block 16 px past a checker's
+            // corner).
             if lead == 0
                 && !sides.0.is_empty()
                 && gap_is_ground(
@@ -1903,26 +1904,13 @@ fn shadow_explains_quadrants(
     hi < 1.0 && hi - lo <= 0.6 * (1.0 - hi)
 }
 
-/// Whether paving's tiles lie past a checker's outer sides, past a light
-/// quadrant and past a dark one: a band one tile out that shows the other
+/// Whether paving's tiles lie past a checker's outer sides, `[past a dark
+/// quadrant, past a light one]`: a band one tile out that shows the other
 /// colour's level for [`TILE_BAND_HITS`] of its 15 samples (three rows out,
 /// five along the side), and a band one tile further out that does not go
 /// on at that level (fewer than half its samples within the same
 /// tolerance). Ground beside a target goes on; a tile ends. Tolerance: 0.3
 /// of the quadrants' difference.
-fn tiles_around(
-    img: &GreyView,
-    c: Pt,
-    dirs: &[Pt; 2],
-    lengths: &[f64; 4],
-    quadrants: &[f64; 4],
-) -> bool {
-    let p = tiles_past(img, c, dirs, lengths, quadrants);
-    p[0] && p[1]
-}
-
-/// Whether paving's tiles lie past a checker's sides, as [`tiles_around`]
-/// tells them: `[past a dark quadrant, past a light one]`.
 fn tiles_past(
     img: &GreyView,
     c: Pt,
@@ -2756,13 +2744,13 @@ mod tests {
                 height: 320,
                 stride: 320,
             };
-            tiles_around(
+            tiles_past(
                 &img,
                 (160.0, 160.0),
                 &[(1.0, 0.0), (0.0, 1.0)],
                 &[30.0; 4],
                 &[200.0, 50.0, 200.0, 50.0],
-            )
+            ) == [true; 2]
         };
         // Paving: one ring of tiles past the block, then grey ground.
         let paving = render_image(320, |x, y| {

@@ -233,6 +233,21 @@ fn a_grid_crossing_with_a_stripe_over_a_cell_is_not_a_cross() {
     assert!(found.is_empty(), "{found:?}");
 }
 
+/// Crossings taken on a second look whose "shadow" edge ran along the
+/// found board's side, 0.3-1.2 px inside it: a straight border a cell past
+/// a panel grid's crossing (held-out clutter scene 3604, at 1676.4, 1307.9
+/// in the frame), and two more (scenes 2401 and 1512, at 1327.4, 150.6 and
+/// 1039.8, 1424.5). Lifting such an edge changes only the ground past the
+/// side, which the first look's checks read: it does not pass through the
+/// target.
+#[test]
+fn an_edge_along_a_boards_side_is_not_lifted_as_a_shadow() {
+    for (scene, at) in [(3604, (1356, 988)), (2401, (1007, 0)), (1512, (720, 1104))] {
+        let found = crosshairs_in_window(scene, at);
+        assert!(found.is_empty(), "scene {scene}: {found:?}");
+    }
+}
+
 /// Two road stripes, one's end corner touching the corner of a stub on the
 /// other, make two light and two dark "quadrants" around one point, but the
 /// boundaries through it bend (15 degrees) where a printed checker's run

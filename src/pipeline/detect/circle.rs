@@ -316,7 +316,7 @@ impl CircleDetector {
             start.c,
             SHADOW_SEARCH * r,
             (SHADOW_COPY * r, |size: f64| SHADOW_COPY * size / 2.0),
-            0.75,
+            |size| 0.75 * size,
             |view, at| self.analyse(view, Ellipse { c: at, ..start }),
         )
     }

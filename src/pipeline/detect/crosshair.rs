@@ -150,6 +150,15 @@ const NOT_SHADOW: [&str; 12] = [
 /// with the shadow lifted: the arms' walk and the ground checked past their
 /// ends (about 1.9 arm lengths).
 const SHADOW_COPY: f64 = 1.3;
+/// How far inside a target's sides (half the found size from its centre) a
+/// shadow edge must pass for the second look to stand. An edge closer in
+/// runs along a side, in its blur, or cuts off the square's corners only:
+/// lifting it changes the ground past the side, not the target. Four
+/// look-alikes on the clutter sets passed so, their edge 0.3-1.2 px inside
+/// the side (a panel's border a cell past a grid crossing, scene 3604);
+/// the closest a true target's came on thirteen crosshair sets was 4 px
+/// inside (a 79 px checker, frame 2403).
+const SHADOW_INSIDE_PX: f64 = 2.0;
 /// Half-sides of a cross's board that must show against the ground when a
 /// bar runs on along a stripe (one way or both) or ends far out.
 const BOARD_SIDES_SEEN: usize = 4;
@@ -653,13 +662,14 @@ impl CrosshairDetector {
     ) -> Result<Found, &'static str> {
         let cap = 0.75 * self.sizes.reach_px + size_guess;
         let half_for = |size: f64| (SHADOW_COPY * size).min(cap);
-        // Reach: half a side, through the target's square near its middle.
+        // Reach: half a side, through the target's square, clear of its
+        // sides' blur.
         shadow::second_look(
             img,
             start,
             SHADOW_SEARCH * size_guess,
             (half_for(size_guess), half_for),
-            0.5,
+            |size| 0.5 * size - SHADOW_INSIDE_PX,
             |view, at| self.analyse(view, at, size_guess),
         )
     }

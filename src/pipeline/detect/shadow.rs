@@ -157,7 +157,7 @@ pub fn with_second_look(
 /// the candidate's start in it) runs again on a copy of the square of half
 /// side `half` around `start` with the shadow edge found within `radius`
 /// lifted. What it finds stands only when the edge passes within `reach`
-/// (a fraction of the found size) of its centre: through the target, not
+/// (of the found size, in pixels) of its centre: through the target, not
 /// beside it, as a boundary of paving or of a panel beside a junction would.
 ///
 /// The copy must hold what is found and the ground its checks look at
@@ -175,7 +175,7 @@ pub fn second_look(
     start: Pt,
     radius: f64,
     (half, half_for): (f64, impl Fn(f64) -> f64),
-    reach: f64,
+    reach: impl Fn(f64) -> f64,
     analyse: impl Fn(&GreyView, Pt) -> Result<Found, &'static str>,
 ) -> Result<Found, &'static str> {
     let edge = find(img, start, radius).ok_or("no shadow edge")?;
@@ -188,7 +188,7 @@ pub fn second_look(
     if need > half {
         found = look(need)?;
     }
-    if edge.distance(found.centre).abs() > reach * found.size {
+    if edge.distance(found.centre).abs() > reach(found.size) {
         return Err("shadow edge off the target");
     }
     Ok(found)

@@ -2908,33 +2908,23 @@ mod tests {
         // levels unlike the quadrants', do not.
         assert_eq!(lines(&|_, _| 128.0), 0);
         assert_eq!(lines(&|u, _| if u < 30.0 { 100.0 } else { 160.0 }), 0);
-        // Ground of the quadrants' levels stepping along a side line, but
-        // only in a band a fifth of the arm wide on each side of it (a
-        // pattern of texture there by chance): it must hold two fifths out.
-        let band = |u: f64, v: f64| {
-            if v > 30.0 && (u - 30.0).abs() < 8.0 {
-                if u < 30.0 {
+        // Ground of the quadrants' levels stepping along a side line past
+        // a corner, in a band `half` px wide on each side of the line.
+        let step = |half: f64| {
+            move |u: f64, v: f64| {
+                if v <= 30.0 || (u - 30.0).abs() >= half {
+                    128.0
+                } else if u < 30.0 {
                     50.0
                 } else {
                     200.0
                 }
-            } else {
-                128.0
             }
         };
-        assert_eq!(lines(&band), 0);
-        // The same step held a whole tile wide counts (a tile boundary).
-        let wide = |u: f64, v: f64| {
-            if v > 30.0 && (u - 30.0).abs() < 30.0 {
-                if u < 30.0 {
-                    50.0
-                } else {
-                    200.0
-                }
-            } else {
-                128.0
-            }
-        };
-        assert_eq!(lines(&wide), 1);
+        // A band a fifth of the arm wide (a pattern of texture there by
+        // chance) does not count: it must hold two fifths out.
+        assert_eq!(lines(&step(8.0)), 0);
+        // The same step held a whole tile wide does (a tile boundary).
+        assert_eq!(lines(&step(30.0)), 1);
     }
 }

@@ -312,6 +312,27 @@ fn paving_with_a_tile_past_a_side_and_a_line_past_a_corner_is_not_a_checker() {
     }
 }
 
+/// Paving's dark tile beside an object of another grey in place of the
+/// other dark tile: light quadrants that agree, dark ones apart, and no
+/// shadow edge to darken one. Clutter scenes 2114, 3311 and 2007, the
+/// windows that hold the blocks (at 1137.8, 732.9; 1375.2, 1691.6; 257.5,
+/// 1082.9 in the frames). Each was detected before that rule.
+#[test]
+fn paving_with_dark_quadrants_apart_and_no_shadow_is_not_a_checker() {
+    for (scene, at) in [(2114, (818, 413)), (3311, (1055, 1160)), (2007, (0, 763))] {
+        let found = crosshairs_in_window(scene, at);
+        assert!(found.is_empty(), "scene {scene}: {found:?}");
+    }
+}
+
+/// A printed checker with one dark quadrant in a shadow (its light ones
+/// lit alike) is found: the shadow's edge shows. Crosshair frame 2401,
+/// the 83 px checker at (850.2, 577.2).
+#[test]
+fn a_checker_with_one_dark_quadrant_in_shadow_is_found() {
+    assert_target_found(2401, (530, 257), (320.22, 320.24));
+}
+
 /// The same in shadow: a paving block that a shadow crosses is not taken on
 /// a second look with the shadow lifted either. Clutter scene 2615, the
 /// window that holds the block (at 1172.9, 1338.5 in the frame).

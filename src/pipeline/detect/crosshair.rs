@@ -160,9 +160,19 @@ const SHADOW_COPY: f64 = 1.3;
 /// the closest a true target's came on thirteen crosshair sets was 4 px
 /// inside (a 79 px checker, frame 2403).
 const SHADOW_INSIDE_PX: f64 = 2.0;
+/// Light quadrants of a checker agree when the lower is this fraction of
+/// the higher at least.
+const LIGHT_PAIR_AGREES: f64 = 0.9;
 /// Half-sides of a cross's board that must show against the ground when a
 /// bar runs on along a stripe (one way or both) or ends far out.
 const BOARD_SIDES_SEEN: usize = 4;
+/// Which look at a candidate: the first, on the tile, or the second, on a
+/// copy with a shadow edge lifted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Look {
+    First,
+    Lifted,
+}
 /// The slack on a measured size (the arms' lengths): measured over true
 /// size on the 1059 hits of the nine crosshair sets (`printed_misses
 /// crosshair SEED 4` with `RMS=1`, 2026-12-04) ran 0.964-1.116 (median
@@ -288,7 +298,13 @@ impl CrosshairDetector {
         Some((centre, size))
     }
 
-    fn analyse(&self, img: &GreyView, start: Pt, size_guess: f64) -> Result<Found, &'static str> {
+    fn analyse(
+        &self,
+        img: &GreyView,
+        start: Pt,
+        size_guess: f64,
+        look: Look,
+    ) -> Result<Found, &'static str> {
         let r1 = 0.28 * size_guess;
         if r1 < 3.0 {
             return Err("too small");
@@ -600,6 +616,24 @@ impl CrosshairDetector {
                 {
                     return Err("tiles past a corner");
                 }
+                // Light quadrants that agree beside dark ones that do not:
+                // a shadow over one dark quadrant, or paving's dark tile
+                // beside an object of another grey (a roof face, a car) in
+                // its place. The shadow's edge must show, the darker one's
+                // middle on its shaded side and further in. With a shadow
+                // lifted, none is looked for: lifting the edge of an object
+                // leaves a step the other way that passes for one.
+                if let Some((lower, higher)) = dark_pair_apart(&quadrants) {
+                    let patch = |k| quadrant_centre(centre, &dirs, &lengths, k);
+                    let shaded = look == Look::First
+                        && shadow::find(img, centre, SHADOW_SEARCH * size).is_some_and(|e| {
+                            let (lo, hi) = (e.distance(patch(lower)), e.distance(patch(higher)));
+                            lo < 0.0 && lo < hi
+                        });
+                    if !shaded {
+                        return Err("dark quadrants differ");
+                    }
+                }
                 // A printed boundary runs straight through the centre: each
                 // line's two halves, fitted apart, agree. Two objects'
                 // corners meeting (a stripe's end touching another's side,
@@ -683,7 +717,7 @@ impl CrosshairDetector {
             SHADOW_SEARCH * size_guess,
             (half_for(size_guess), half_for),
             |size| 0.5 * size - SHADOW_INSIDE_PX,
-            |view, at| self.analyse(view, at, size_guess),
+            |view, at| self.analyse(view, at, size_guess, Look::Lifted),
         )
     }
 }
@@ -720,10 +754,11 @@ impl Detector for CrosshairDetector {
         let mut found: Vec<Found> = starts
             .into_iter()
             .filter_map(|(c, s)| {
-                let verdict =
-                    shadow::with_second_look(self.analyse(&img, c, s), &NOT_SHADOW, || {
-                        self.analyse_lifted(&img, c, s)
-                    });
+                let verdict = shadow::with_second_look(
+                    self.analyse(&img, c, s, Look::First),
+                    &NOT_SHADOW,
+                    || self.analyse_lifted(&img, c, s),
+                );
                 verdict
                     .map_err(|(why, lifted)| {
                         tracing::trace!(
@@ -1873,8 +1908,23 @@ fn quadrants_whole(
     lengths: &[f64; 4],
     quadrants: &[f64; 4],
 ) -> bool {
+    quadrant_outliers(img, c, dirs, lengths, quadrants)
+        .is_some_and(|n| n.iter().all(|&k| k <= MAX_QUADRANT_OUTLIERS))
+}
+
+/// How many samples of each quadrant's 5x5 grid (clear of the blurred
+/// boundaries and outer sides) lie off the quadrant's median by more than
+/// 0.3 of the quadrants' difference; `None` if the grid leaves the image.
+fn quadrant_outliers(
+    img: &GreyView,
+    c: Pt,
+    dirs: &[Pt; 2],
+    lengths: &[f64; 4],
+    quadrants: &[f64; 4],
+) -> Option<[usize; 4]> {
     let tolerance = 0.3 * pair_levels(quadrants).2;
-    (0..4).all(|k| {
+    let mut out = [0; 4];
+    for (k, n) in out.iter_mut().enumerate() {
         let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
         let (la, lb) = (lengths[k], lengths[(k + 1) % 4]);
         let (ma, mb) = ((0.15 * la).max(3.0), (0.15 * lb).max(3.0));
@@ -1883,15 +1933,13 @@ fn quadrants_whole(
             for fv in [0.1, 0.3, 0.5, 0.7, 0.9] {
                 let (u, w) = (ma + (la - 2.0 * ma) * fu, mb + (lb - 2.0 * mb) * fv);
                 let p = add(add(c, a, u), b, w);
-                match img.sample(p.0, p.1) {
-                    Some(x) => v.push(x),
-                    None => return false,
-                }
+                v.push(img.sample(p.0, p.1)?);
             }
         }
         let level = pr::quantile(&v, 0.5);
-        v.iter().filter(|x| (*x - level).abs() > tolerance).count() <= MAX_QUADRANT_OUTLIERS
-    })
+        *n = v.iter().filter(|x| (*x - level).abs() > tolerance).count();
+    }
+    Some(out)
 }
 
 /// Whether a shadow accounts for a cross's quadrants differing in level: a
@@ -2027,6 +2075,36 @@ fn side_lines_run_on(
     on
 }
 
+/// A checker's dark quadrants `(lower, higher)` when they differ as a
+/// shadow would make them and its light quadrants do not: the light pair
+/// within [`LIGHT_PAIR_AGREES`], the dark pair by a factor below the
+/// weakest shadow searched for ([`shadow::MIN_FACTOR`]) and by a tenth of
+/// the quadrants' difference at least (dark print is noisy in ratio).
+fn dark_pair_apart(quadrants: &[f64; 4]) -> Option<(usize, usize)> {
+    let (even, odd, difference) = pair_levels(quadrants);
+    let (dark, light) = if even < odd { (0, 1) } else { (1, 0) };
+    let (l, d) = ((light, light + 2), (dark, dark + 2));
+    let ratio = |(a, b): (usize, usize)| {
+        quadrants[a].min(quadrants[b]) / quadrants[a].max(quadrants[b]).max(1.0)
+    };
+    let (lower, higher) = if quadrants[d.0] < quadrants[d.1] {
+        d
+    } else {
+        (d.1, d.0)
+    };
+    (ratio(l) >= LIGHT_PAIR_AGREES
+        && ratio(d) < shadow::MIN_FACTOR
+        && quadrants[higher] - quadrants[lower] >= 0.1 * difference)
+        .then_some((lower, higher))
+}
+
+/// Where quadrant `k` (between arm k and arm k+1) is sampled for its level:
+/// halfway along its bisector.
+fn quadrant_centre(c: Pt, dirs: &[Pt; 2], lengths: &[f64; 4], k: usize) -> Pt {
+    let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
+    add(add(c, a, 0.55 * lengths[k]), b, 0.55 * lengths[(k + 1) % 4])
+}
+
 /// A checker's quadrant levels paired: the mean of quadrants 0 and 2, of
 /// 1 and 3, and their difference.
 fn pair_levels(quadrants: &[f64; 4]) -> (f64, f64, f64) {
@@ -2040,8 +2118,7 @@ fn pair_levels(quadrants: &[f64; 4]) -> (f64, f64, f64) {
 fn quadrant_levels(img: &GreyView, c: Pt, dirs: &[Pt; 2], lengths: &[f64; 4]) -> Option<[f64; 4]> {
     let mut out = [0.0; 4];
     for (k, q) in out.iter_mut().enumerate() {
-        let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
-        let centre = add(add(c, a, 0.55 * lengths[k]), b, 0.55 * lengths[(k + 1) % 4]);
+        let centre = quadrant_centre(c, dirs, lengths, k);
         let r = 0.08 * (lengths[k] + lengths[(k + 1) % 4]);
         let mut sum = 0.0;
         for i in 0..9 {
@@ -2094,6 +2171,22 @@ mod tests {
         // A plain edge (two halves) and a flat ring are neither.
         assert!(classify_ring(&basis, &ring_of(|a| if a < PI { 200.0 } else { 30.0 })).is_none());
         assert!(classify_ring(&basis, &ring_of(|_| 120.0)).is_none());
+    }
+
+    #[test]
+    fn dark_quadrants_apart_beside_light_ones_that_agree_are_picked_out() {
+        // Quadrants 0 and 2 light, 1 and 3 dark: quadrant 3 at a shadow's
+        // 0.55 of quadrant 1 is the lower.
+        assert_eq!(dark_pair_apart(&[200.0, 80.0, 196.0, 44.0]), Some((3, 1)));
+        assert_eq!(dark_pair_apart(&[44.0, 200.0, 80.0, 196.0]), Some((0, 2)));
+        // Dark ones as close as the weakest shadow looked for: not apart.
+        assert_eq!(dark_pair_apart(&[200.0, 80.0, 200.0, 64.0]), None);
+        // Light ones apart too (a shadow over a light quadrant as well, or
+        // across the board): left to the other checks.
+        assert_eq!(dark_pair_apart(&[200.0, 80.0, 170.0, 44.0]), None);
+        // Dark print's noise: 8 against 16 is under a tenth of the
+        // quadrants' difference.
+        assert_eq!(dark_pair_apart(&[220.0, 8.0, 220.0, 16.0]), None);
     }
 
     #[test]
@@ -2246,7 +2339,7 @@ mod tests {
             reach_px: 200.0,
         });
         let m = (w / 2) as f64;
-        detector.analyse(&img, (m, m), size_guess)
+        detector.analyse(&img, (m, m), size_guess, Look::First)
     }
 
     /// White road markings (230) on dark asphalt (30), 320 x 320: `on(dx,
@@ -2777,7 +2870,7 @@ mod tests {
         }
         let lit = shadowed_cross(0.0, -1e9);
         let truth = detector
-            .analyse(&view(&lit), (150.0, 150.0), 100.0)
+            .analyse(&view(&lit), (150.0, 150.0), 100.0, Look::First)
             .expect("the cross in full light")
             .centre;
         // On this sharp (unblurred) render the lit cross is found 0.08 px
@@ -2788,7 +2881,9 @@ mod tests {
             for off in [-30.0, -15.0, 0.0, 15.0, 30.0] {
                 let data = shadowed_cross(angle, off);
                 let img = view(&data);
-                first_failed += detector.analyse(&img, (150.0, 150.0), 100.0).is_err() as usize;
+                first_failed += detector
+                    .analyse(&img, (150.0, 150.0), 100.0, Look::First)
+                    .is_err() as usize;
                 let f = detector
                     .analyse_lifted(&img, (150.0, 150.0), 100.0)
                     .unwrap_or_else(|why| panic!("angle {angle}, offset {off}: {why}"));

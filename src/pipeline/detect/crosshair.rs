@@ -622,7 +622,7 @@ impl CrosshairDetector {
                 // its place. The shadow's edge must show, the darker one's
                 // middle on its shaded side and further in. With a shadow
                 // lifted, none is looked for: lifting the edge of an object
-                // leaves a step the other way that passes for one.
+                // leaves a step the other way that could pass for one.
                 if let Some((lower, higher)) = dark_pair_apart(&quadrants) {
                     let patch = |k| quadrant_centre(centre, &dirs, &lengths, k);
                     let shaded = look == Look::First

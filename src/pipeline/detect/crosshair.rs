@@ -2099,7 +2099,7 @@ fn dark_pair_apart(quadrants: &[f64; 4]) -> Option<(usize, usize)> {
 }
 
 /// Where quadrant `k` (between arm k and arm k+1) is sampled for its level:
-/// halfway along its bisector.
+/// 0.55 of the arms out along its bisector, a little past halfway.
 fn quadrant_centre(c: Pt, dirs: &[Pt; 2], lengths: &[f64; 4], k: usize) -> Pt {
     let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
     add(add(c, a, 0.55 * lengths[k]), b, 0.55 * lengths[(k + 1) % 4])

@@ -1908,23 +1908,8 @@ fn quadrants_whole(
     lengths: &[f64; 4],
     quadrants: &[f64; 4],
 ) -> bool {
-    quadrant_outliers(img, c, dirs, lengths, quadrants)
-        .is_some_and(|n| n.iter().all(|&k| k <= MAX_QUADRANT_OUTLIERS))
-}
-
-/// How many samples of each quadrant's 5x5 grid (clear of the blurred
-/// boundaries and outer sides) lie off the quadrant's median by more than
-/// 0.3 of the quadrants' difference; `None` if the grid leaves the image.
-fn quadrant_outliers(
-    img: &GreyView,
-    c: Pt,
-    dirs: &[Pt; 2],
-    lengths: &[f64; 4],
-    quadrants: &[f64; 4],
-) -> Option<[usize; 4]> {
     let tolerance = 0.3 * pair_levels(quadrants).2;
-    let mut out = [0; 4];
-    for (k, n) in out.iter_mut().enumerate() {
+    (0..4).all(|k| {
         let (a, b) = (arm_dir(dirs, k), arm_dir(dirs, (k + 1) % 4));
         let (la, lb) = (lengths[k], lengths[(k + 1) % 4]);
         let (ma, mb) = ((0.15 * la).max(3.0), (0.15 * lb).max(3.0));
@@ -1933,13 +1918,15 @@ fn quadrant_outliers(
             for fv in [0.1, 0.3, 0.5, 0.7, 0.9] {
                 let (u, w) = (ma + (la - 2.0 * ma) * fu, mb + (lb - 2.0 * mb) * fv);
                 let p = add(add(c, a, u), b, w);
-                v.push(img.sample(p.0, p.1)?);
+                match img.sample(p.0, p.1) {
+                    Some(x) => v.push(x),
+                    None => return false,
+                }
             }
         }
         let level = pr::quantile(&v, 0.5);
-        *n = v.iter().filter(|x| (*x - level).abs() > tolerance).count();
-    }
-    Some(out)
+        v.iter().filter(|x| (*x - level).abs() > tolerance).count() <= MAX_QUADRANT_OUTLIERS
+    })
 }
 
 /// Whether a shadow accounts for a cross's quadrants differing in level: a
@@ -2077,8 +2064,8 @@ fn side_lines_run_on(
 
 /// A checker's dark quadrants `(lower, higher)` when they differ as a
 /// shadow would make them and its light quadrants do not: the light pair
-/// within [`LIGHT_PAIR_AGREES`], the dark pair by a factor below the
-/// weakest shadow searched for ([`shadow::MIN_FACTOR`]) and by a tenth of
+/// within [`LIGHT_PAIR_AGREES`], the dark pair by more than the weakest
+/// shadow searched for ([`shadow::MIN_STEP`] in ln grey) and by a tenth of
 /// the quadrants' difference at least (dark print is noisy in ratio).
 fn dark_pair_apart(quadrants: &[f64; 4]) -> Option<(usize, usize)> {
     let (even, odd, difference) = pair_levels(quadrants);
@@ -2093,7 +2080,7 @@ fn dark_pair_apart(quadrants: &[f64; 4]) -> Option<(usize, usize)> {
         (d.1, d.0)
     };
     (ratio(l) >= LIGHT_PAIR_AGREES
-        && ratio(d) < shadow::MIN_FACTOR
+        && -ratio(d).ln() > shadow::MIN_STEP
         && quadrants[higher] - quadrants[lower] >= 0.1 * difference)
         .then_some((lower, higher))
 }

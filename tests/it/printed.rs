@@ -145,10 +145,16 @@ const CORNER: (usize, usize) = (2400 - 640, 1800 - 640);
 /// A detection's centre and size, in pixels.
 type Spot = ((f64, f64), f64);
 
-/// The crosshair detections on the 640 px window from `(x0, y0)` of
-/// clutter scene `seed` (2400 x 1800).
-fn crosshairs_in_window(seed: u64, at: (usize, usize)) -> Vec<Spot> {
-    crosshairs_in_scene_window(&clutter_scene(2400, 1800, seed), at).0
+/// No crosshair detection on any of `windows`: the 640 px window from
+/// `(x0, y0)` of clutter scene `seed` (2400 x 1800).
+fn assert_no_crosshair(windows: &[(u64, (usize, usize))]) {
+    for &(seed, at) in windows {
+        let found = crosshairs_in_scene_window(&clutter_scene(2400, 1800, seed), at).0;
+        assert!(
+            found.is_empty(),
+            "scene {seed}, window at {at:?}: {found:?}"
+        );
+    }
 }
 
 /// The crosshair detections on the 640 px window from `(x0, y0)` of
@@ -221,10 +227,7 @@ fn assert_target_found(seed: u64, at: (usize, usize), near: (f64, f64)) {
 /// level out to its sides, as a printed checker's is.
 #[test]
 fn paving_partly_hidden_beside_an_object_is_not_a_checker() {
-    for (scene, at) in [(1111, (52, 231)), (735, (1033, 790))] {
-        let found = crosshairs_in_window(scene, at);
-        assert!(found.is_empty(), "scene {scene}: {found:?}");
-    }
+    assert_no_crosshair(&[(1111, (52, 231)), (735, (1033, 790))]);
 }
 
 /// A road-marking cross (white bars over 7x longer than wide on a dark patch,
@@ -235,8 +238,7 @@ fn paving_partly_hidden_beside_an_object_is_not_a_checker() {
 /// paving block taken for a checker.
 #[test]
 fn a_road_marking_cross_is_not_taken_on_a_second_look() {
-    let found = crosshairs_in_window(2503, CORNER);
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(2503, CORNER)]);
 }
 
 /// A panel grid's crossing with stripes lying over the grid, one of them
@@ -246,8 +248,7 @@ fn a_road_marking_cross_is_not_taken_on_a_second_look() {
 /// that holds the crossing (at 2364.9, 1739.0 in the frame).
 #[test]
 fn a_grid_crossing_with_a_stripe_over_a_cell_is_not_a_cross() {
-    let found = crosshairs_in_window(2601, CORNER);
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(2601, CORNER)]);
 }
 
 /// Crossings taken on a second look whose "shadow" edge ran along the
@@ -259,10 +260,7 @@ fn a_grid_crossing_with_a_stripe_over_a_cell_is_not_a_cross() {
 /// target.
 #[test]
 fn an_edge_along_a_boards_side_is_not_lifted_as_a_shadow() {
-    for (scene, at) in [(3604, (1356, 988)), (2401, (1007, 0)), (1512, (720, 1104))] {
-        let found = crosshairs_in_window(scene, at);
-        assert!(found.is_empty(), "scene {scene}: {found:?}");
-    }
+    assert_no_crosshair(&[(3604, (1356, 988)), (2401, (1007, 0)), (1512, (720, 1104))]);
 }
 
 /// Two road stripes, one's end corner touching the corner of a stub on the
@@ -272,8 +270,7 @@ fn an_edge_along_a_boards_side_is_not_lifted_as_a_shadow() {
 /// (at 923.7, 814.9 in the frame).
 #[test]
 fn two_stripe_corners_touching_are_not_a_checker() {
-    let found = crosshairs_in_window(2804, (600, 500));
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(2804, (600, 500))]);
 }
 
 /// A cross where checker paving meets a panel grid: one of its "bars"
@@ -283,8 +280,7 @@ fn two_stripe_corners_touching_are_not_a_checker() {
 /// 1230.4, 526.7 in the frame).
 #[test]
 fn a_cross_whose_bar_bends_at_the_crossing_is_not_a_cross() {
-    let found = crosshairs_in_window(2313, (900, 200));
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(2313, (900, 200))]);
 }
 
 /// A block of checker paving whose boundaries' continuations past the arms
@@ -294,8 +290,7 @@ fn a_cross_whose_bar_bends_at_the_crossing_is_not_a_cross() {
 /// block (at 1880.0, 1306.2 in the frame).
 #[test]
 fn paving_tiles_past_both_colours_sides_are_not_a_checker() {
-    let found = crosshairs_in_window(1200, (1560, 1000));
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(1200, (1560, 1000))]);
 }
 
 /// Paving blocks with a tile past one side only (the others hidden under
@@ -306,10 +301,7 @@ fn paving_tiles_past_both_colours_sides_are_not_a_checker() {
 /// 1130.1 in the frames). Each is detected without that rule.
 #[test]
 fn paving_with_a_tile_past_a_side_and_a_line_past_a_corner_is_not_a_checker() {
-    for (scene, at) in [(2906, (0, 1160)), (747, (755, 0)), (2015, (1402, 810))] {
-        let found = crosshairs_in_window(scene, at);
-        assert!(found.is_empty(), "scene {scene}: {found:?}");
-    }
+    assert_no_crosshair(&[(2906, (0, 1160)), (747, (755, 0)), (2015, (1402, 810))]);
 }
 
 /// Paving's dark tile beside an object of another grey in place of the
@@ -319,10 +311,7 @@ fn paving_with_a_tile_past_a_side_and_a_line_past_a_corner_is_not_a_checker() {
 /// 1082.9 in the frames). Each was detected before that rule.
 #[test]
 fn paving_with_dark_quadrants_apart_and_no_shadow_is_not_a_checker() {
-    for (scene, at) in [(2114, (818, 413)), (3311, (1055, 1160)), (2007, (0, 763))] {
-        let found = crosshairs_in_window(scene, at);
-        assert!(found.is_empty(), "scene {scene}: {found:?}");
-    }
+    assert_no_crosshair(&[(2114, (818, 413)), (3311, (1055, 1160)), (2007, (0, 763))]);
 }
 
 /// A printed checker with one dark quadrant in a shadow (its light ones
@@ -340,8 +329,7 @@ fn a_checker_with_one_dark_quadrant_in_shadow_is_found() {
 /// window that holds the block (at 1172.9, 1338.5 in the frame).
 #[test]
 fn paving_tiles_in_shadow_are_not_a_checker_on_a_second_look() {
-    let found = crosshairs_in_window(2615, (850, 1018));
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(2615, (850, 1018))]);
 }
 
 /// A panel grid's crossing whose bars run on past the cells is not a cross,
@@ -350,14 +338,12 @@ fn paving_tiles_in_shadow_are_not_a_checker_on_a_second_look() {
 /// window that holds the crossing (at 1064.6, 482.0 in the frame).
 #[test]
 fn a_grid_crossing_near_a_shadow_is_not_a_cross_on_a_second_look() {
-    let found = crosshairs_in_window(3202, (970, 388));
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(3202, (970, 388))]);
 }
 
 /// The same at a grid's edge: held-out clutter scene 3108, the window that
 /// holds the crossing (at 734.7, 748.1 in the frame).
 #[test]
 fn a_grid_crossing_at_the_grids_edge_is_not_a_cross_on_a_second_look() {
-    let found = crosshairs_in_window(3108, (684, 698));
-    assert!(found.is_empty(), "{found:?}");
+    assert_no_crosshair(&[(3108, (684, 698))]);
 }

@@ -12,7 +12,8 @@
 //! starting 352 px apart on these frames), `LIFTED=1` the reason of each
 //! rejected candidate's second look (shadow lifted) next to its first's,
 //! `MISSCROP=1` a crop of each missed target (`/tmp/crops/miss*.png`),
-//! `TRUTHCROP=1` (with `ACCEPTED=1`) of every target.
+//! `TRUTHCROP=1` (with `ACCEPTED=1`) of every target; on clutter,
+//! `ONLY=circle` (or `crosshair`) runs that mode alone.
 
 use std::collections::BTreeMap;
 use std::io::BufRead;
@@ -88,7 +89,10 @@ fn main() {
         frame: FrameOptions {
             detector: DetectorConfig {
                 modes: if clutter {
-                    vec![MarkerType::Crosshair, MarkerType::Circle]
+                    match std::env::var("ONLY") {
+                        Ok(m) => vec![m.parse().expect("ONLY: crosshair or circle")],
+                        Err(_) => vec![MarkerType::Crosshair, MarkerType::Circle],
+                    }
                 } else {
                     vec![mode]
                 },

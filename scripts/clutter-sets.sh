@@ -5,6 +5,7 @@
 #
 #     bash scripts/clutter-sets.sh            # all 36 sets, 558 frames
 #     bash scripts/clutter-sets.sh 900:16     # any SEED:FRAMES sets
+#     ONLY=circle bash scripts/clutter-sets.sh  # one mode alone (about half the time)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . scripts/env.sh

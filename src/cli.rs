@@ -12,7 +12,9 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::pipeline::batch::{run_batch, BatchOptions, FrameInput, FrameOutcome};
-use crate::pipeline::detect::{AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType};
+use crate::pipeline::detect::{
+    AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType, TargetDesign,
+};
 use crate::pipeline::frame::{FrameOptions, FrameResult, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE};
 use crate::pipeline::georef::{TargetCrs, Transformer};
 use crate::pipeline::memory::default_max_ram_bytes;
@@ -189,6 +191,9 @@ pub struct DetectArgs {
     /// Expected ground sample distance in cm per pixel (default: from each frame's georeference, when it has one).
     #[arg(long, env = "GCP_TAGGER_GSD_CM")]
     pub gsd_cm: Option<f64>,
+    /// A printed target's design as JSON (kind, polarity, proportions, free areas, size_m); replaces the built-in designs of its mode. See the README's "Printed targets".
+    #[arg(long, env = "GCP_TAGGER_TARGET_DESIGN")]
+    pub target_design: Option<PathBuf>,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
@@ -272,6 +277,19 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
     }
 
     let mut modes = args.marker_type.clone();
+    let designs = match &args.target_design {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| usage(format!("cannot read target design {}: {e}", path.display())))?;
+            let design = TargetDesign::from_json(&text)
+                .map_err(|e| usage(format!("{}: {e}", path.display())))?;
+            // A design names its mode: it is searched for even when
+            // --marker-type does not list that mode.
+            modes.push(design.marker_type());
+            vec![design]
+        }
+        None => Vec::new(),
+    };
     modes.sort();
     modes.dedup();
     let frame = FrameOptions::new(
@@ -281,8 +299,12 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
             apriltag_family: args.apriltag_family,
             min_target_px: args.min_target_px,
             max_refine_shift_px: args.max_refine_shift_px,
-            target_size_m: args.target_size_m,
+            // The design's own size, unless the command line gives one.
+            target_size_m: args
+                .target_size_m
+                .or(designs.first().and_then(|d| d.size_m)),
             gsd_cm: args.gsd_cm,
+            designs,
         },
         args.tile_size,
         args.max_target_px,

@@ -169,6 +169,7 @@ impl JobParams {
                 max_refine_shift_px: self.max_refine_shift_px,
                 target_size_m: self.target_size_m,
                 gsd_cm: self.gsd_cm,
+                designs: Vec::new(),
             },
             self.tile_size,
             self.max_target_px,

@@ -7,6 +7,10 @@ use super::detect::Detection;
 /// Two detections of the same type and id whose centres are closer than this
 /// fraction of the target size are the same target.
 const SAME_TARGET_FRACTION: f64 = 0.5;
+/// Copies of one target measure within a few percent of each other's size;
+/// a detection this much larger than another on it is a different target
+/// that contains it.
+const NESTED_SIZE_RATIO: f64 = 1.5;
 
 /// Removes duplicates in place. The result is sorted by (type, id, y, x) and
 /// independent of the order detections arrived in.
@@ -21,13 +25,18 @@ pub fn remove_duplicates(detections: &mut Vec<Detection>) {
     });
     let mut kept: Vec<Detection> = Vec::with_capacity(detections.len());
     for d in detections.drain(..) {
-        let duplicate = kept.iter().any(|k| {
+        let duplicate = kept.iter().position(|k| {
             k.marker_type == d.marker_type
                 && k.marker_id == d.marker_id
                 && dist(k.center, d.center) < SAME_TARGET_FRACTION * k.size_px.max(d.size_px)
         });
-        if !duplicate {
-            kept.push(d);
+        match duplicate {
+            None => kept.push(d),
+            // A much larger target around a kept one: the kept one is a
+            // detail of its board (a printed target's marking) seen from a
+            // tile that did not hold the whole board.
+            Some(i) if d.size_px > NESTED_SIZE_RATIO * kept[i].size_px => kept[i] = d,
+            Some(_) => {}
         }
     }
     kept.sort_by(|a, b| {

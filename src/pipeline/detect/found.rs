@@ -37,6 +37,34 @@ pub fn best_per_target(found: &mut Vec<Found>) -> Vec<Found> {
     kept
 }
 
+/// One detection per board: a verified target whose centre lies on a
+/// larger verified target's board is a detail of it (a marking's corner, a
+/// quadrant's texture). The larger is kept: it was verified on more of the
+/// image. Copies of one target (similar sizes) keep the most confident.
+pub fn one_per_board(found: &mut Vec<Found>) -> Vec<Found> {
+    found.sort_by(|a, b| {
+        b.size
+            .total_cmp(&a.size)
+            .then(b.confidence.total_cmp(&a.confidence))
+            .then(a.centre.1.total_cmp(&b.centre.1))
+            .then(a.centre.0.total_cmp(&b.centre.0))
+    });
+    let mut kept: Vec<Found> = Vec::new();
+    for f in found.drain(..) {
+        match kept
+            .iter()
+            .position(|k| geometry::dist(k.centre, f.centre) < 0.5 * k.size)
+        {
+            None => kept.push(f),
+            Some(i) if kept[i].size < 1.5 * f.size && f.confidence > kept[i].confidence => {
+                kept[i] = f
+            }
+            Some(_) => {}
+        }
+    }
+    kept
+}
+
 /// Of a target found as it is and (maybe) found again with a shadow lifted,
 /// the one whose edges fit their lines or ellipse better.
 pub fn better_fit(first: Found, second: Result<Found, &'static str>) -> Found {

@@ -205,10 +205,14 @@ impl RingBasis {
 }
 
 /// The response of one symmetry from [`RingBasis::response`]'s figures.
+///
+/// A cross's quadrants may hold markings (a design's free area), which
+/// break the ring's point symmetry: the cross's response is its 4th
+/// harmonic over its 2nd only, and the alternation is not asked of it.
 pub fn score(symmetry: Symmetry, (a2, a4, asym): (f64, f64, f64)) -> f64 {
     match symmetry {
         Symmetry::Checker => a2 - a4 - asym,
-        Symmetry::Cross => a4 - a2 - asym,
+        Symmetry::Cross => a4 - a2,
     }
 }
 
@@ -332,7 +336,7 @@ fn level_candidates(
             let r = (a2, a4, basis.asymmetry(&ring));
             for (map, symmetry) in resp.iter_mut().zip([Symmetry::Checker, Symmetry::Cross]) {
                 let mut v = score(symmetry, r);
-                if v >= MIN_SCORE {
+                if v >= MIN_SCORE && symmetry == Symmetry::Checker {
                     v = v.min(basis.alternation(symmetry, &ring));
                 }
                 map[y * w + x] = v as f32;

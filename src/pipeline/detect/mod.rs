@@ -8,10 +8,12 @@ mod arcs;
 mod blobs;
 mod circle;
 mod crosshair;
+pub mod design;
 mod fiducial;
 mod found;
 pub mod geometry;
 mod harmonic;
+mod printed;
 mod profile;
 pub mod refine;
 mod shadow;
@@ -25,6 +27,8 @@ use opencv::core::Mat;
 
 pub use circle::CircleDetector;
 pub use crosshair::CrosshairDetector;
+pub use design::TargetDesign;
+pub use printed::PrintedDetector;
 pub use fiducial::{marker_bits, AprilTagFamily, ArucoDictionary, FiducialDetector};
 
 /// Why a tile could not be searched.
@@ -196,6 +200,9 @@ pub struct DetectorConfig {
     /// Expected ground sample distance in cm per pixel; `None` takes it from
     /// the frame's georeference when that is in metres.
     pub gsd_cm: Option<f64>,
+    /// Printed designs to look for; empty means the built-in presets of
+    /// each printed mode requested.
+    pub designs: Vec<TargetDesign>,
 }
 
 /// Target sizes, in pixels, a detector accepts.
@@ -262,6 +269,7 @@ impl Default for DetectorConfig {
             max_refine_shift_px: None,
             target_size_m: None,
             gsd_cm: None,
+            designs: Vec::new(),
         }
     }
 }
@@ -284,7 +292,20 @@ pub fn build_detectors(
                 config.aruco_dictionary.opencv_name(),
                 config,
             )?)),
-            MarkerType::Crosshair => out.push(Box::new(CrosshairDetector::new(sizes))),
+            MarkerType::Crosshair => {
+                let own: Vec<TargetDesign> = config
+                    .designs
+                    .iter()
+                    .filter(|d| d.marker_type() == MarkerType::Crosshair)
+                    .cloned()
+                    .collect();
+                let designs = if own.is_empty() {
+                    design::presets()
+                } else {
+                    own
+                };
+                out.push(Box::new(PrintedDetector::new(*mode, designs, sizes)))
+            }
             MarkerType::Circle => out.push(Box::new(CircleDetector::new(sizes))),
         }
     }

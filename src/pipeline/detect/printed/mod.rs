@@ -1,0 +1,382 @@
+//! Printed targets without a code, found from their [`TargetDesign`]:
+//!
+//! 1. **Candidates** from invariant geometry: centres where a ring of
+//!    samples shows four-fold (cross) or two-fold (checker) symmetry, on an
+//!    image pyramid ([`harmonic`]).
+//! 2. **Fit**: the two lines through the centre (a cross's bar centre lines,
+//!    a checker's quadrant boundaries) are followed outward along all four
+//!    arms to the board's sides and fitted as straight lines, points beside a
+//!    marking left out ([`walk`]). The centre is their intersection, which
+//!    perspective does not move off the target's centre (lines stay lines).
+//! 3. **Verify once**: the design drawn under that fit is compared with the
+//!    image on the design's non-free area ([`verify`]); the correlation is
+//!    the detection's confidence.
+//!
+//! Every threshold is a field of [`Params`].
+
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
+
+use opencv::core::Mat;
+use opencv::prelude::*;
+
+use super::design::{DesignKind, Polarity, TargetDesign};
+use super::fiducial::grey_view;
+use super::found::{one_per_board, to_detection, Found};
+use super::geometry::{self, Pt};
+use super::harmonic::{self, Candidate, RingBasis, Symmetry};
+use super::profile::{self as pr, unit};
+use super::refine::{intersect, GreyView};
+use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
+
+mod verify;
+mod walk;
+
+use verify::{verify, Fit};
+use walk::{follow, Arm, Feature};
+
+/// Thresholds of the printed-target detector. Defaults are calibrated on
+/// generated frames (`examples/printed_misses.rs`), not on real photos.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Params {
+    /// Smallest normalised correlation of the drawn design with the image.
+    pub min_score: f64,
+    /// Fewest grey levels between the design's light and dark parts.
+    pub min_contrast: f64,
+    /// Least ratio of the target's contrast to the ground's texture around
+    /// it (see `verify::ground_texture`).
+    pub min_salience: f64,
+    /// A profile's side is the board when it differs from the bar (or the
+    /// other side of a step) by this share of the target's contrast.
+    pub side_share: f64,
+    /// Bar widths measured on a profile, relative to the expected width,
+    /// that give a centre-line point.
+    pub width_band: (f64, f64),
+    /// Share of an arm's on-board profiles that must give a point.
+    pub min_coverage: f64,
+    /// Largest RMS distance, in pixels, of the points from their line.
+    pub max_fit_rms_px: f64,
+    /// Largest ratio of two opposite arms' lengths (perspective, a side
+    /// partly hidden).
+    pub max_arm_ratio: f64,
+    /// Measured sizes may fall this factor outside the searched range.
+    pub size_slack: f64,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            min_score: 0.75,
+            min_contrast: 15.0,
+            min_salience: 4.0,
+            side_share: 0.4,
+            width_band: (0.6, 1.5),
+            min_coverage: 0.35,
+            max_fit_rms_px: 0.8,
+            max_arm_ratio: 1.6,
+            size_slack: 1.1,
+        }
+    }
+}
+
+/// Why a candidate is not a target of the design.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rejection {
+    /// The ring around the candidate leaves the tile.
+    AtTileEdge,
+    /// The ring shows too little contrast for the design.
+    LowContrast,
+    /// An arm gave too few points on its line.
+    ArmUnclear,
+    /// An arm did not end within reach (the structure runs on).
+    RunsOn,
+    /// A line fit failed or its points scatter.
+    LineFit,
+    /// Opposite arms differ more than perspective explains.
+    UnevenArms,
+    /// Bar width or board size outside the design's or search's range.
+    Proportions,
+    /// The drawn design does not match the image.
+    NoMatch,
+    /// The pattern is no stronger than the ground's texture around it.
+    Texture,
+}
+
+/// Detector of the designs of one kind family (crosses and checkers).
+pub struct PrintedDetector {
+    marker_type: MarkerType,
+    designs: Vec<TargetDesign>,
+    sizes: SizeRange,
+    params: Params,
+    basis: RingBasis,
+}
+
+/// Ring samples for a candidate's orientation and levels.
+const RING_SAMPLES: usize = 64;
+
+impl PrintedDetector {
+    pub fn new(marker_type: MarkerType, designs: Vec<TargetDesign>, sizes: SizeRange) -> Self {
+        PrintedDetector {
+            marker_type,
+            designs,
+            sizes,
+            params: Params::default(),
+            basis: RingBasis::new(RING_SAMPLES),
+        }
+    }
+
+    /// The designs a candidate of this symmetry may be.
+    fn designs_for(&self, s: Symmetry) -> impl Iterator<Item = &TargetDesign> {
+        self.designs.iter().filter(move |d| {
+            matches!(
+                (d.kind, s),
+                (DesignKind::Cross, Symmetry::Cross) | (DesignKind::Checker, Symmetry::Checker)
+            )
+        })
+    }
+
+    /// Fits and verifies `design` at candidate `c`.
+    fn analyse(&self, img: &GreyView, c: &Candidate, design: &TargetDesign) -> Result<Found, Rejection> {
+        let p = &self.params;
+        let r = (harmonic::RING_TO_SIZE * c.size).max(3.0);
+        let ring = pr::ring(img, c.centre, r, &self.basis).ok_or(Rejection::AtTileEdge)?;
+        let (lo, hi) = ring
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+        let contrast = hi - lo;
+        if contrast < p.min_contrast {
+            return Err(Rejection::LowContrast);
+        }
+        let (k, sign) = match design.kind {
+            DesignKind::Cross => (
+                4,
+                if design.polarity == Polarity::LightOnDark { 1.0 } else { -1.0 },
+            ),
+            DesignKind::Checker => (2, 1.0),
+        };
+        let signed: Vec<f64> = ring.iter().map(|v| sign * v).collect();
+        // Harmonic k peaks on the bars (cross) or the light quadrants'
+        // middles (checker, whose boundaries lie 45 degrees from them).
+        let mut a0 = self.basis.phase(k, &signed) / k as f64;
+        if design.kind == DesignKind::Checker {
+            a0 += FRAC_PI_4;
+        }
+        let mut dirs = [unit(a0), unit(a0 + FRAC_PI_2)];
+        let width0 = match design.kind {
+            DesignKind::Cross => bar_width_on_ring(&signed, r),
+            DesignKind::Checker => (0.08 * c.size).max(2.5),
+        };
+        let mut centre = c.centre;
+        let mut width = width0;
+        // Two passes: the first near the centre from the candidate's
+        // guesses, the second along the whole arms from the first's lines.
+        let mut arms: [Arm; 4] = Default::default();
+        let mut lines = [(centre, dirs[0]); 2];
+        for pass in 0..2 {
+            let limit = if pass == 0 { 0.35 * c.size } else { 1.1 * c.size };
+            let start = match design.kind {
+                DesignKind::Cross => 0.5 * width + 2.5,
+                DesignKind::Checker => width + 1.5,
+            };
+            let step = (limit / 40.0).max(0.5);
+            for (i, arm) in arms.iter_mut().enumerate() {
+                let d = arm_dir(&dirs, i);
+                let feature = match design.kind {
+                    DesignKind::Cross => Feature::Bar { sign },
+                    // Boundary i's +normal side is quadrant (i, i+1): light
+                    // on arms 0 and 2 when quadrant (+,+) is light.
+                    DesignKind::Checker => Feature::Step {
+                        sign: checker_side(img, centre, &dirs, i, width)
+                            .ok_or(Rejection::ArmUnclear)?,
+                    },
+                };
+                *arm = follow(img, feature, centre, d, width, contrast, (start, limit, step), p);
+                if pass == 1 && arm.unended {
+                    return Err(Rejection::RunsOn);
+                }
+                let wanted = (p.min_coverage * arm.profiles as f64).max(3.0);
+                if (arm.points.len() as f64) < wanted {
+                    return Err(Rejection::ArmUnclear);
+                }
+            }
+            for (l, line) in lines.iter_mut().enumerate() {
+                let pts: Vec<Pt> = arms[l].points.iter().chain(&arms[l + 2].points).copied().collect();
+                let (fitted, inl) = pr::robust_line(&pts).ok_or(Rejection::LineFit)?;
+                if pass == 1 && pr::line_rms(&inl, fitted) > p.max_fit_rms_px {
+                    return Err(Rejection::LineFit);
+                }
+                *line = fitted;
+            }
+            centre = intersect(lines[0], lines[1]).ok_or(Rejection::LineFit)?;
+            if geometry::dist(centre, c.centre) > 0.3 * c.size {
+                return Err(Rejection::LineFit);
+            }
+            dirs = [orient(lines[0].1, dirs[0]), orient(lines[1].1, dirs[1])];
+            if design.kind == DesignKind::Cross {
+                let all: Vec<f64> = arms.iter().flat_map(|a| a.widths.iter().copied()).collect();
+                width = pr::quantile(&all, 0.5);
+            }
+        }
+        let lengths = [0, 1, 2, 3].map(|i| arms[i].length);
+        for i in 0..2 {
+            let (a, b) = (lengths[i], lengths[i + 2]);
+            if a.max(b) > p.max_arm_ratio * a.min(b) {
+                return Err(Rejection::UnevenArms);
+            }
+        }
+        let bar = match design.kind {
+            DesignKind::Cross => [0, 1].map(|l| {
+                let w: Vec<f64> = arms[l].widths.iter().chain(&arms[l + 2].widths).copied().collect();
+                if w.is_empty() { width } else { pr::quantile(&w, 0.5) }
+            }),
+            DesignKind::Checker => [0.0; 2],
+        };
+        let fit = Fit { centre, dirs, lengths, bar };
+        let size = fit.size();
+        let slack = p.size_slack;
+        if size < self.sizes.min_px / slack || size > self.sizes.max_px * slack {
+            return Err(Rejection::Proportions);
+        }
+        if let Some(range) = design.bar_width {
+            // Blur widens the narrowest bars' profiles a little: 20% slack.
+            let ratio = 0.5 * (bar[0] + bar[1]) / size;
+            if ratio < range.0 / 1.2 || ratio > range.1 * 1.2 {
+                return Err(Rejection::Proportions);
+            }
+        }
+        let verdict = verify(img, design, &fit).ok_or(Rejection::AtTileEdge)?;
+        if verdict.contrast < p.min_contrast || verdict.score < p.min_score {
+            return Err(Rejection::NoMatch);
+        }
+        tracing::debug!(
+            x = centre.0,
+            y = centre.1,
+            size,
+            tile = true,
+            design = %design.name,
+            score = verdict.score,
+            contrast = verdict.contrast,
+            salience = verdict.salience,
+            "printed candidate verified"
+        );
+        if verdict.salience < p.min_salience {
+            return Err(Rejection::Texture);
+        }
+        let rms = {
+            let mut all = Vec::new();
+            for l in 0..2 {
+                let pts: Vec<Pt> = arms[l].points.iter().chain(&arms[l + 2].points).copied().collect();
+                if let Some((line, inl)) = pr::robust_line(&pts) {
+                    all.push(pr::line_rms(&inl, line));
+                }
+            }
+            (all.iter().map(|r| r * r).sum::<f64>() / all.len().max(1) as f64).sqrt()
+        };
+        Ok(Found {
+            centre,
+            corners: fit.corners(),
+            size,
+            shift: geometry::dist(centre, c.centre),
+            rms,
+            confidence: verdict.score.clamp(0.0, 1.0),
+        })
+    }
+}
+
+/// Direction of arm `i` (0..4): the two lines' directions and their opposites.
+fn arm_dir(dirs: &[Pt; 2], i: usize) -> Pt {
+    let d = dirs[i % 2];
+    if i >= 2 {
+        (-d.0, -d.1)
+    } else {
+        d
+    }
+}
+
+/// `d` or its opposite, whichever points along `like`.
+fn orient(d: Pt, like: Pt) -> Pt {
+    if d.0 * like.0 + d.1 * like.1 >= 0.0 {
+        d
+    } else {
+        (-d.0, -d.1)
+    }
+}
+
+/// A cross's bar width from the light arcs on a ring of radius `r`: the
+/// share of samples above the ring's middle level is four bars' arcs.
+fn bar_width_on_ring(signed: &[f64], r: f64) -> f64 {
+    let (lo, hi) = signed
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+    let mid = 0.5 * (lo + hi);
+    let light = signed.iter().filter(|v| **v > mid).count() as f64 / signed.len() as f64;
+    (light * std::f64::consts::TAU * r / 4.0).max(2.0)
+}
+
+/// Checker boundary `i`'s polarity: +1 when its +normal side is the
+/// lighter quadrant, from samples in the two quadrants beside it a few
+/// widths out.
+fn checker_side(img: &GreyView, c: Pt, dirs: &[Pt; 2], i: usize, width: f64) -> Option<f64> {
+    let a = arm_dir(dirs, i);
+    let t = 3.0 * width;
+    let n = pr::perp(a);
+    let q = |s: f64| img.sample(c.0 + a.0 * t + n.0 * s, c.1 + a.1 * t + n.1 * s);
+    let (plus, minus) = (q(width)?, q(-width)?);
+    Some(if plus > minus { 1.0 } else { -1.0 })
+}
+
+impl Detector for PrintedDetector {
+    fn marker_type(&self) -> MarkerType {
+        self.marker_type
+    }
+
+    fn detect(
+        &mut self,
+        tile: &Mat,
+        origin: (usize, usize),
+        seams: [bool; 4],
+    ) -> Result<Vec<Detection>, DetectError> {
+        let err = DetectError::at(origin);
+        let candidates = harmonic::candidates(tile, self.sizes).map_err(err)?;
+        let img = grey_view(tile).map_err(err)?;
+        let mut found: Vec<Found> = Vec::new();
+        for c in &candidates {
+            tracing::trace!(
+                x = c.centre.0 + origin.0 as f64,
+                y = c.centre.1 + origin.1 as f64,
+                size = c.size,
+                score = c.score,
+                symmetry = ?c.symmetry,
+                "printed candidate"
+            );
+            // A candidate on a target already found (another pyramid level's
+            // response to it) is not analysed again.
+            if found
+                .iter()
+                .any(|f| geometry::dist(f.centre, c.centre) < 0.25 * f.size)
+            {
+                continue;
+            }
+            for design in self.designs_for(c.symmetry) {
+                match self.analyse(&img, c, design) {
+                    Ok(f) => {
+                        found.push(f);
+                        break;
+                    }
+                    Err(why) => tracing::trace!(
+                        x = c.centre.0 + origin.0 as f64,
+                        y = c.centre.1 + origin.1 as f64,
+                        size = c.size,
+                        design = %design.name,
+                        ?why,
+                        "printed candidate rejected"
+                    ),
+                }
+            }
+        }
+        let (w, h) = (tile.cols() as f64, tile.rows() as f64);
+        Ok(one_per_board(&mut found)
+            .into_iter()
+            .map(|f| to_detection(self.marker_type, f, origin, w, h, seams))
+            .collect())
+    }
+}

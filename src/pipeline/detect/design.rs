@@ -197,9 +197,15 @@ mod tests {
                 r#"{"name":"x","kind":"cross","bar_width":[0.3,0.1]}"#,
                 "must satisfy",
             ),
-            (r#"{"name":"x","kind":"checker","free":"quadrants"}"#, "cannot be free"),
+            (
+                r#"{"name":"x","kind":"checker","free":"quadrants"}"#,
+                "cannot be free",
+            ),
             (r#"{"name":"x","kind":"star"}"#, "unknown variant"),
-            (r#"{"name":"x","kind":"checker","colour":1}"#, "unknown field"),
+            (
+                r#"{"name":"x","kind":"checker","colour":1}"#,
+                "unknown field",
+            ),
         ] {
             let e = TargetDesign::from_json(text).unwrap_err().to_string();
             assert!(e.contains(says), "{text}: {e}");

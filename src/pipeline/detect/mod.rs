@@ -28,8 +28,8 @@ use opencv::core::Mat;
 pub use circle::CircleDetector;
 pub use crosshair::CrosshairDetector;
 pub use design::TargetDesign;
-pub use printed::PrintedDetector;
 pub use fiducial::{marker_bits, AprilTagFamily, ArucoDictionary, FiducialDetector};
+pub use printed::PrintedDetector;
 
 /// Why a tile could not be searched.
 #[derive(Debug, thiserror::Error)]

@@ -24,7 +24,7 @@ use super::fiducial::grey_view;
 use super::found::{one_per_board, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::harmonic::{self, Candidate, RingBasis, Symmetry};
-use super::profile::{self as pr, unit};
+use super::profile::{self as pr, add, unit};
 use super::refine::{intersect, GreyView};
 use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
@@ -71,7 +71,7 @@ impl Default for Params {
             side_share: 0.4,
             width_band: (0.6, 1.5),
             min_coverage: 0.35,
-            max_fit_rms_px: 0.8,
+            max_fit_rms_px: 1.5,
             max_arm_ratio: 1.6,
             size_slack: 1.1,
         }
@@ -135,7 +135,13 @@ impl PrintedDetector {
     }
 
     /// Fits and verifies `design` at candidate `c`.
-    fn analyse(&self, img: &GreyView, c: &Candidate, design: &TargetDesign) -> Result<Found, Rejection> {
+    fn analyse(
+        &self,
+        img: &GreyView,
+        c: &Candidate,
+        design: &TargetDesign,
+        seams: [bool; 4],
+    ) -> Result<Found, Rejection> {
         let p = &self.params;
         let r = (harmonic::RING_TO_SIZE * c.size).max(3.0);
         let ring = pr::ring(img, c.centre, r, &self.basis).ok_or(Rejection::AtTileEdge)?;
@@ -149,7 +155,11 @@ impl PrintedDetector {
         let (k, sign) = match design.kind {
             DesignKind::Cross => (
                 4,
-                if design.polarity == Polarity::LightOnDark { 1.0 } else { -1.0 },
+                if design.polarity == Polarity::LightOnDark {
+                    1.0
+                } else {
+                    -1.0
+                },
             ),
             DesignKind::Checker => (2, 1.0),
         };
@@ -172,12 +182,16 @@ impl PrintedDetector {
         let mut arms: [Arm; 4] = Default::default();
         let mut lines = [(centre, dirs[0]); 2];
         for pass in 0..2 {
-            let limit = if pass == 0 { 0.35 * c.size } else { 1.1 * c.size };
+            let limit = if pass == 0 {
+                0.35 * c.size
+            } else {
+                1.1 * c.size
+            };
             let start = match design.kind {
                 DesignKind::Cross => 0.5 * width + 2.5,
                 DesignKind::Checker => width + 1.5,
             };
-            let step = (limit / 40.0).max(0.5);
+            let step = (limit / 60.0).max(0.5);
             for (i, arm) in arms.iter_mut().enumerate() {
                 let d = arm_dir(&dirs, i);
                 let feature = match design.kind {
@@ -189,25 +203,61 @@ impl PrintedDetector {
                             .ok_or(Rejection::ArmUnclear)?,
                     },
                 };
-                *arm = follow(img, feature, centre, d, width, contrast, (start, limit, step), p);
+                *arm = follow(
+                    img,
+                    feature,
+                    centre,
+                    d,
+                    width,
+                    contrast,
+                    (start, limit, step),
+                    p,
+                );
                 if pass == 1 && arm.unended {
                     return Err(Rejection::RunsOn);
                 }
-                let wanted = (p.min_coverage * arm.profiles as f64).max(3.0);
-                if (arm.points.len() as f64) < wanted {
+                // A board cut by a tile seam is seen whole from the tile
+                // past it; one cut by the frame's edge is measured as seen.
+                if pass == 1
+                    && arm.left_tile
+                    && crosses_seam(img, add(centre, d, arm.length + 2.0 * width), seams)
+                {
+                    return Err(Rejection::AtTileEdge);
+                }
+            }
+            // A marking may run beside a whole arm (a free quadrant's
+            // triangle on a bar): each line is judged on both its arms.
+            for l in 0..2 {
+                let (a, b) = (&arms[l], &arms[l + 2]);
+                let points = (a.points.len() + b.points.len()) as f64;
+                let wanted = (p.min_coverage * (a.profiles + b.profiles) as f64).max(6.0);
+                if points < wanted {
+                    tracing::trace!(pass, l, arms = ?arms.iter().map(|a| (a.points.len(), a.profiles, a.length as i32)).collect::<Vec<_>>(), width, "coverage");
                     return Err(Rejection::ArmUnclear);
                 }
             }
             for (l, line) in lines.iter_mut().enumerate() {
-                let pts: Vec<Pt> = arms[l].points.iter().chain(&arms[l + 2].points).copied().collect();
+                let pts: Vec<Pt> = arms[l]
+                    .points
+                    .iter()
+                    .chain(&arms[l + 2].points)
+                    .copied()
+                    .collect();
                 let (fitted, inl) = pr::robust_line(&pts).ok_or(Rejection::LineFit)?;
                 if pass == 1 && pr::line_rms(&inl, fitted) > p.max_fit_rms_px {
+                    tracing::trace!(
+                        rms = pr::line_rms(&inl, fitted),
+                        n = inl.len(),
+                        of = pts.len(),
+                        "rms"
+                    );
                     return Err(Rejection::LineFit);
                 }
                 *line = fitted;
             }
             centre = intersect(lines[0], lines[1]).ok_or(Rejection::LineFit)?;
             if geometry::dist(centre, c.centre) > 0.3 * c.size {
+                tracing::trace!(?centre, "moved");
                 return Err(Rejection::LineFit);
             }
             dirs = [orient(lines[0].1, dirs[0]), orient(lines[1].1, dirs[1])];
@@ -220,17 +270,32 @@ impl PrintedDetector {
         for i in 0..2 {
             let (a, b) = (lengths[i], lengths[i + 2]);
             if a.max(b) > p.max_arm_ratio * a.min(b) {
+                tracing::trace!(?lengths, ?centre, ?dirs, "uneven");
                 return Err(Rejection::UnevenArms);
             }
         }
         let bar = match design.kind {
             DesignKind::Cross => [0, 1].map(|l| {
-                let w: Vec<f64> = arms[l].widths.iter().chain(&arms[l + 2].widths).copied().collect();
-                if w.is_empty() { width } else { pr::quantile(&w, 0.5) }
+                let w: Vec<f64> = arms[l]
+                    .widths
+                    .iter()
+                    .chain(&arms[l + 2].widths)
+                    .copied()
+                    .collect();
+                if w.is_empty() {
+                    width
+                } else {
+                    pr::quantile(&w, 0.5)
+                }
             }),
             DesignKind::Checker => [0.0; 2],
         };
-        let fit = Fit { centre, dirs, lengths, bar };
+        let fit = Fit {
+            centre,
+            dirs,
+            lengths,
+            bar,
+        };
         let size = fit.size();
         let slack = p.size_slack;
         if size < self.sizes.min_px / slack || size > self.sizes.max_px * slack {
@@ -264,7 +329,12 @@ impl PrintedDetector {
         let rms = {
             let mut all = Vec::new();
             for l in 0..2 {
-                let pts: Vec<Pt> = arms[l].points.iter().chain(&arms[l + 2].points).copied().collect();
+                let pts: Vec<Pt> = arms[l]
+                    .points
+                    .iter()
+                    .chain(&arms[l + 2].points)
+                    .copied()
+                    .collect();
                 if let Some((line, inl)) = pr::robust_line(&pts) {
                     all.push(pr::line_rms(&inl, line));
                 }
@@ -280,6 +350,16 @@ impl PrintedDetector {
             confidence: verdict.score.clamp(0.0, 1.0),
         })
     }
+}
+
+/// Whether `p`, a point on or past the tile's edge, lies beyond a side that
+/// is a seam with another tile (left, top, right, bottom).
+fn crosses_seam(img: &GreyView, p: Pt, seams: [bool; 4]) -> bool {
+    let (w, h) = ((img.width - 1) as f64, (img.height - 1) as f64);
+    (seams[0] && p.0 <= 0.0)
+        || (seams[1] && p.1 <= 0.0)
+        || (seams[2] && p.0 >= w)
+        || (seams[3] && p.1 >= h)
 }
 
 /// Direction of arm `i` (0..4): the two lines' directions and their opposites.
@@ -357,7 +437,7 @@ impl Detector for PrintedDetector {
                 continue;
             }
             for design in self.designs_for(c.symmetry) {
-                match self.analyse(&img, c, design) {
+                match self.analyse(&img, c, design, seams) {
                     Ok(f) => {
                         found.push(f);
                         break;

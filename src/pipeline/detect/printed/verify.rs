@@ -5,10 +5,10 @@
 //! design's parts one by one (a bar here, a dark patch there) rarely
 //! matches them all at once.
 
+use super::super::design::{DesignKind, FreeArea, Polarity, TargetDesign};
 use super::super::geometry::Pt;
 use super::super::profile::add;
 use super::super::refine::GreyView;
-use super::super::design::{DesignKind, FreeArea, Polarity, TargetDesign};
 
 /// The fitted geometry of a cross or checker: a centre, the two lines'
 /// directions (arm 0 along `dirs[0]`, arm 1 along `dirs[1]`, arms 2 and 3
@@ -26,8 +26,16 @@ pub struct Fit {
 impl Fit {
     /// Image point of design coordinates (u, v) in [-1, 1]^2.
     pub fn at(&self, u: f64, v: f64) -> Pt {
-        let lu = if u >= 0.0 { self.lengths[0] } else { self.lengths[2] };
-        let lv = if v >= 0.0 { self.lengths[1] } else { self.lengths[3] };
+        let lu = if u >= 0.0 {
+            self.lengths[0]
+        } else {
+            self.lengths[2]
+        };
+        let lv = if v >= 0.0 {
+            self.lengths[1]
+        } else {
+            self.lengths[3]
+        };
         add(add(self.centre, self.dirs[0], u * lu), self.dirs[1], v * lv)
     }
 
@@ -64,8 +72,8 @@ const EDGE_PX: f64 = 1.2;
 /// side is where the arms' ends put it, good to a pixel or two.
 const SIDE_MARGIN: f64 = 0.06;
 
-/// Compares `design` drawn under `fit` with `img`; None when the board
-/// leaves the image or too few samples remain.
+/// Compares `design` drawn under `fit` with `img`; None when more than a
+/// fifth of the board lies outside the image or too few samples remain.
 pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdict> {
     let lines = [(fit.centre, fit.dirs[0]), (fit.centre, fit.dirs[1])];
     // Signed distance of p from line k (positive on the side of the other
@@ -78,6 +86,7 @@ pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdic
     let mut dark = (0.0, 0usize);
     let mut samples: Vec<(f64, f64)> = Vec::with_capacity(GRID * GRID);
     let band = 1.0 - design.border_band;
+    let mut total = 0usize;
     for j in 0..GRID {
         let v = -1.0 + (2.0 * j as f64 + 1.0) / GRID as f64;
         for i in 0..GRID {
@@ -113,7 +122,12 @@ pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdic
                     u * v > 0.0
                 }
             };
-            let g = img.sample(p.0, p.1)?;
+            total += 1;
+            // The frame's edge may cut a board's rim: samples past it are
+            // left out (a tile seam never cuts one; see the detector).
+            let Some(g) = img.sample(p.0, p.1) else {
+                continue;
+            };
             let t = if is_light { 1.0 } else { 0.0 };
             samples.push((t, g));
             if is_light {
@@ -125,7 +139,7 @@ pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdic
             }
         }
     }
-    if light.1 < 8 || dark.1 < 8 {
+    if light.1 < 8 || dark.1 < 8 || samples.len() * 5 < total * 4 {
         return None;
     }
     let n = samples.len() as f64;
@@ -138,7 +152,11 @@ pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdic
         stt += (t - mt) * (t - mt);
         sgg += (g - mg) * (g - mg);
     }
-    let mut score = if sgg > 0.0 { stg / (stt * sgg).sqrt() } else { 0.0 };
+    let mut score = if sgg > 0.0 {
+        stg / (stt * sgg).sqrt()
+    } else {
+        0.0
+    };
     let mut contrast = light.0 / light.1 as f64 - dark.0 / dark.1 as f64;
     if design.kind == DesignKind::Checker {
         score = score.abs();

@@ -37,6 +37,8 @@ pub struct Arm {
     pub length: f64,
     /// The walk reached its limit with the board still there.
     pub unended: bool,
+    /// The walk left the tile with the board still there.
+    pub left_tile: bool,
 }
 
 /// Follows the feature from `centre` along unit `dir`, from `start` to at
@@ -56,8 +58,10 @@ pub fn follow(
     params: &Params,
 ) -> Arm {
     let n = perp(dir);
+    // A bar's profile reaches a bar width past each side band, so that a
+    // bar bent off the fitted line (cloth, perspective) is still measured.
     let half = match feature {
-        Feature::Bar { .. } => 1.5 * width + 2.0,
+        Feature::Bar { .. } => 2.5 * width + 4.0,
         Feature::Step { .. } => width,
     };
     let side_from = match feature {
@@ -76,12 +80,16 @@ pub fn follow(
         let base = add(centre, dir, t);
         if pr::line(img, base, n, half, &mut profile).is_none() {
             // The tile's edge: the arm cannot be followed to its end.
-            arm.unended = true;
+            arm.left_tile = true;
             return arm;
         }
         let on_board = match feature {
-            Feature::Bar { sign } => bar_profile(&profile, half, side_from, sign, width, contrast, params, &mut arm, base, n),
-            Feature::Step { sign } => step_profile(&profile, half, side_from, sign, contrast, params, &mut arm, base, n),
+            Feature::Bar { sign } => bar_profile(
+                &profile, half, side_from, sign, width, contrast, params, &mut arm, base, n,
+            ),
+            Feature::Step { sign } => step_profile(
+                &profile, half, side_from, sign, contrast, params, &mut arm, base, n,
+            ),
         };
         if on_board {
             arm.profiles += 1;
@@ -107,7 +115,11 @@ pub fn follow(
 /// Mean of the profile's samples between `from` and `to` pixels from its
 /// centre (signed).
 fn band_mean(p: &[f64], half: f64, from: f64, to: f64) -> f64 {
-    let idx = |x: f64| ((x + half) / pr::STEP_PX).round().clamp(0.0, (p.len() - 1) as f64) as usize;
+    let idx = |x: f64| {
+        ((x + half) / pr::STEP_PX)
+            .round()
+            .clamp(0.0, (p.len() - 1) as f64) as usize
+    };
     let (a, b) = (idx(from.min(to)), idx(from.max(to)));
     pr::mean(p, a, b + 1)
 }
@@ -125,9 +137,25 @@ fn bar_profile(
     base: Pt,
     n: Pt,
 ) -> bool {
-    let left = band_mean(p, half, -half, -side_from);
-    let right = band_mean(p, half, side_from, half);
-    let core = sign * band_mean(p, half, -0.25 * width, 0.25 * width);
+    // The bar where the profile is lightest (darkest) near its middle, then
+    // its sides a band's width out from there.
+    let reach = 0.5 * width + 2.0;
+    let step_px = pr::STEP_PX;
+    let mut at = 0.0;
+    let mut best = f64::MIN;
+    let mut x = -reach;
+    while x <= reach {
+        let v = sign * band_mean(p, half, x - 0.25 * width, x + 0.25 * width);
+        if v > best {
+            best = v;
+            at = x;
+        }
+        x += step_px;
+    }
+    let outer = 1.5 * width + 2.0;
+    let left = band_mean(p, half, at - outer, at - side_from);
+    let right = band_mean(p, half, at + side_from, at + outer);
+    let core = best;
     let (l, r) = (sign * left, sign * right);
     let need = params.side_share * contrast;
     let (l_board, r_board) = (core - l >= need, core - r >= need);
@@ -141,7 +169,7 @@ fn bar_profile(
     }
     // Edges: where the profile crosses halfway between the bar and each side,
     // nearest the expected edges.
-    let centre_idx = half / pr::STEP_PX;
+    let centre_idx = (half + at) / pr::STEP_PX;
     let hw = 0.5 * width / pr::STEP_PX;
     let s: Vec<f64> = p.iter().map(|v| sign * v).collect();
     let lo = pr::crossing(&s, 0.5 * (core + l), true, centre_idx - hw);

@@ -9,8 +9,9 @@ import csv
 import math
 import sys
 
-det_path = sys.argv[1]
-truth_path = sys.argv[2] if len(sys.argv) > 2 else "../shared/real/copr-dev/targets.csv"
+det_path = [a for a in sys.argv[1:] if a != "-v"][0]
+args = [a for a in sys.argv[1:] if a != "-v"]
+truth_path = args[1] if len(args) > 1 else "../shared/real/copr-dev/targets.csv"
 truth = [(r["image"], float(r["px_x"]), float(r["px_y"])) for r in csv.DictReader(open(truth_path))]
 rows = list(csv.DictReader(open(det_path)))
 dets = [(r["image"], float(r["px_x"]), float(r["px_y"])) for r in rows]

@@ -110,11 +110,18 @@ pub struct PrintedDetector {
     basis: RingBasis,
 }
 
+/// Smallest printed target searched for, whatever the job's least size: a
+/// design without a code is told from the ground by its shape alone, and
+/// under this size a checker's quadrants (16 px) are the size of the blobs
+/// of foliage, gravel and sand ripples, which match it as well as a print.
+pub const MIN_PRINTED_PX: f64 = 32.0;
+
 /// Ring samples for a candidate's orientation and levels.
 const RING_SAMPLES: usize = 64;
 
 impl PrintedDetector {
-    pub fn new(marker_type: MarkerType, designs: Vec<TargetDesign>, sizes: SizeRange) -> Self {
+    pub fn new(marker_type: MarkerType, designs: Vec<TargetDesign>, mut sizes: SizeRange) -> Self {
+        sizes.min_px = sizes.min_px.max(MIN_PRINTED_PX);
         PrintedDetector {
             marker_type,
             designs,
@@ -148,10 +155,12 @@ impl PrintedDetector {
         let (lo, hi) = ring
             .iter()
             .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
-        let contrast = hi - lo;
-        if contrast < p.min_contrast {
+        if hi - lo < p.min_contrast {
             return Err(Rejection::LowContrast);
         }
+        // The arms are followed in log grey, where a shadow across the
+        // target changes no difference.
+        let contrast = harmonic::log_grey(hi) - harmonic::log_grey(lo);
         let (k, sign) = match design.kind {
             DesignKind::Cross => (
                 4,

@@ -11,6 +11,7 @@
 //! or where the bar itself fades into the board.
 
 use super::super::geometry::Pt;
+use super::super::harmonic::log_grey;
 use super::super::profile::{self as pr, add, perp};
 use super::super::refine::GreyView;
 use super::Params;
@@ -44,8 +45,8 @@ pub struct Arm {
 /// Follows the feature from `centre` along unit `dir`, from `start` to at
 /// most `limit` pixels, every `step` pixels. `width` is the bar's expected
 /// width (or, for a step, the half-width of the band profiled across it);
-/// `contrast` the grey-level difference between the design's light and dark
-/// parts near the centre.
+/// `contrast` the difference in log grey between the design's light and
+/// dark parts near the centre.
 #[allow(clippy::too_many_arguments)]
 pub fn follow(
     img: &GreyView,
@@ -157,8 +158,13 @@ fn bar_profile(
     let right = band_mean(p, half, at + side_from, at + outer);
     let core = best;
     let (l, r) = (sign * left, sign * right);
+    // Sides and bar compared in log grey, where a shadow is an offset.
     let need = params.side_share * contrast;
-    let (l_board, r_board) = (core - l >= need, core - r >= need);
+    let core_log = log_grey(sign * core);
+    let (l_board, r_board) = (
+        sign * (core_log - log_grey(left)) >= need,
+        sign * (core_log - log_grey(right)) >= need,
+    );
     if !l_board && !r_board {
         return false;
     }
@@ -199,7 +205,7 @@ fn step_profile(
 ) -> bool {
     let minus = band_mean(p, half, -half, -side_from);
     let plus = band_mean(p, half, side_from, half);
-    if sign * (plus - minus) < params.side_share * contrast {
+    if sign * (log_grey(plus) - log_grey(minus)) < params.side_share * contrast {
         return false;
     }
     let centre_idx = half / pr::STEP_PX;

@@ -101,6 +101,15 @@ fn main() {
                 // (a size in metres over a GSD of 1 cm).
                 target_size_m: expect_m,
                 gsd_cm: expect_m.map(|_| 1.0),
+                // DESIGN=file.json: look for that design only.
+                designs: std::env::var("DESIGN")
+                    .ok()
+                    .map(|p| {
+                        let text = std::fs::read_to_string(p).expect("DESIGN: a readable file");
+                        vec![gcp_tagger::pipeline::detect::TargetDesign::from_json(&text)
+                            .expect("DESIGN: a valid design")]
+                    })
+                    .unwrap_or_default(),
                 ..DetectorConfig::default()
             },
             tile_size: 2048,

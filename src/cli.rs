@@ -191,9 +191,9 @@ pub struct DetectArgs {
     /// Expected ground sample distance in cm per pixel (default: from each frame's georeference, when it has one).
     #[arg(long, env = "GCP_TAGGER_GSD_CM")]
     pub gsd_cm: Option<f64>,
-    /// A printed target's design as JSON (kind, polarity, proportions, free areas, size_m); replaces the built-in designs of its mode. See the README's "Printed targets".
+    /// A printed target's design: a preset name (cross, checker) or a JSON file (kind, bar_width, free, size_m...); its targets are found from the description. See the README's "Printed targets".
     #[arg(long, env = "GCP_TAGGER_TARGET_DESIGN")]
-    pub target_design: Option<PathBuf>,
+    pub target_design: Option<String>,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
@@ -278,11 +278,8 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
 
     let mut modes = args.marker_type.clone();
     let designs = match &args.target_design {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| usage(format!("cannot read target design {}: {e}", path.display())))?;
-            let design = TargetDesign::from_json(&text)
-                .map_err(|e| usage(format!("{}: {e}", path.display())))?;
+        Some(arg) => {
+            let design = TargetDesign::from_name_or_file(arg).map_err(usage)?;
             // A design names its mode: it is searched for even when
             // --marker-type does not list that mode.
             modes.push(design.marker_type());

@@ -11,6 +11,7 @@ mod gcp;
 mod georef;
 mod hostile;
 mod printed;
+mod real;
 mod s3;
 mod service;
 mod tiling;

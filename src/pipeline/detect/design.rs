@@ -107,6 +107,26 @@ impl TargetDesign {
         Ok(d)
     }
 
+    /// A built-in design by name (see [`presets`]).
+    pub fn preset(name: &str) -> Option<TargetDesign> {
+        presets().into_iter().find(|d| d.name == name)
+    }
+
+    /// A preset's name or a JSON file's path.
+    pub fn from_name_or_file(arg: &str) -> Result<TargetDesign, String> {
+        if let Some(d) = TargetDesign::preset(arg) {
+            return Ok(d);
+        }
+        let text = std::fs::read_to_string(arg).map_err(|e| {
+            let names: Vec<String> = presets().into_iter().map(|d| d.name).collect();
+            format!(
+                "target design {arg:?} is neither a preset ({}) nor a readable file: {e}",
+                names.join(", ")
+            )
+        })?;
+        TargetDesign::from_json(&text).map_err(|e| format!("{arg}: {e}"))
+    }
+
     /// Checks that the proportions describe a drawable target.
     pub fn validate(&self) -> Result<(), DesignError> {
         let bad = |what: String| DesignError::Invalid {
@@ -151,10 +171,10 @@ impl TargetDesign {
     }
 }
 
-/// Built-in designs: the `crosshair` mode looks for all of them unless a
-/// design is given. A plain cross is the marked cross with nothing marked,
-/// so one preset serves both; bars from 1/16 to 1/4 of the side cover the
-/// field designs in use (about 1/10 on the common 60 cm boards).
+/// Built-in designs, named by `--target-design NAME`. A plain cross is the
+/// marked cross with nothing marked, so one preset serves both; bars from
+/// 1/16 to 1/4 of the side cover the field designs in use (about 1/10 on
+/// the common 60 cm boards).
 pub fn presets() -> Vec<TargetDesign> {
     vec![
         TargetDesign {

@@ -205,15 +205,21 @@ impl RingBasis {
 }
 
 /// The response of one symmetry from [`RingBasis::response`]'s figures.
-///
-/// A cross's quadrants may hold markings (a design's free area), which
-/// break the ring's point symmetry: the cross's response is its 4th
-/// harmonic over its 2nd only, and the alternation is not asked of it.
 pub fn score(symmetry: Symmetry, (a2, a4, asym): (f64, f64, f64)) -> f64 {
     match symmetry {
         Symmetry::Checker => a2 - a4 - asym,
-        Symmetry::Cross => a4 - a2,
+        Symmetry::Cross => a4 - a2 - asym,
     }
+}
+
+/// How the candidate search treats a cross's quadrants.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quadrants {
+    /// Plain: the ring must be point-symmetric and alternate.
+    Plain,
+    /// Free to hold markings, which break the ring's point symmetry: a
+    /// cross responds by its 4th harmonic over its 2nd only.
+    Free,
 }
 
 /// Natural log of (grey + [`LOG_OFFSET`]) for every 8-bit value, built once
@@ -236,7 +242,11 @@ pub fn log_grey(v: f64) -> f64 {
 
 /// Candidates in `tile` (8-bit grey) for targets of `sizes`, ordered by
 /// position (deterministic).
-pub fn candidates(tile: &Mat, sizes: SizeRange) -> opencv::Result<Vec<Candidate>> {
+pub fn candidates(
+    tile: &Mat,
+    sizes: SizeRange,
+    quadrants: Quadrants,
+) -> opencv::Result<Vec<Candidate>> {
     let lut = log_table();
     let mut out = Vec::new();
     // Level 0 is the tile itself (borrowed); the others are pyrDown's.
@@ -252,7 +262,7 @@ pub fn candidates(tile: &Mat, sizes: SizeRange) -> opencv::Result<Vec<Candidate>
             break;
         }
         if band.1 >= sizes.min_px / 1.15 {
-            level_candidates(level, scale, lut, &mut out)?;
+            level_candidates(level, scale, lut, quadrants, &mut out)?;
         }
         let mut next = Mat::default();
         let size = Size::new((level.cols() + 1) / 2, (level.rows() + 1) / 2);
@@ -273,6 +283,7 @@ fn level_candidates(
     level: &Mat,
     scale: f64,
     lut: &[f64; 256],
+    quadrants: Quadrants,
     out: &mut Vec<Candidate>,
 ) -> opencv::Result<()> {
     let (w, h) = (level.cols() as usize, level.rows() as usize);
@@ -335,8 +346,9 @@ fn level_candidates(
             let (a2, a4) = (a2 as f64, a4 as f64);
             let r = (a2, a4, basis.asymmetry(&ring));
             for (map, symmetry) in resp.iter_mut().zip([Symmetry::Checker, Symmetry::Cross]) {
-                let mut v = score(symmetry, r);
-                if v >= MIN_SCORE && symmetry == Symmetry::Checker {
+                let free = quadrants == Quadrants::Free && symmetry == Symmetry::Cross;
+                let mut v = if free { r.1 - r.0 } else { score(symmetry, r) };
+                if v >= MIN_SCORE && !free {
                     v = v.min(basis.alternation(symmetry, &ring));
                 }
                 map[y * w + x] = v as f32;

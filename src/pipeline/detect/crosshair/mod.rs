@@ -754,7 +754,8 @@ impl Detector for CrosshairDetector {
         seams: [bool; 4],
     ) -> Result<Vec<Detection>, DetectError> {
         let err = DetectError::at(origin);
-        let candidates = harmonic::candidates(tile, self.sizes).map_err(err)?;
+        let candidates =
+            harmonic::candidates(tile, self.sizes, harmonic::Quadrants::Plain).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
         // Strongest first, so a target's best start survives the merging.
         let mut ranked: Vec<(f64, Pt, f64)> = candidates

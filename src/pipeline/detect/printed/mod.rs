@@ -19,7 +19,7 @@ use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 use opencv::core::Mat;
 use opencv::prelude::*;
 
-use super::design::{DesignKind, Polarity, TargetDesign};
+use super::design::{DesignKind, FreeArea, Polarity, TargetDesign};
 use super::fiducial::grey_view;
 use super::found::{one_per_board, to_detection, Found};
 use super::geometry::{self, Pt};
@@ -67,7 +67,7 @@ impl Default for Params {
         Params {
             min_score: 0.75,
             min_contrast: 15.0,
-            min_salience: 4.0,
+            min_salience: 6.0,
             side_share: 0.4,
             width_band: (0.6, 1.5),
             min_coverage: 0.35,
@@ -99,6 +99,8 @@ pub enum Rejection {
     NoMatch,
     /// The pattern is no stronger than the ground's texture around it.
     Texture,
+    /// The design repeats one board away: a lattice, not a target.
+    Repeats,
 }
 
 /// Detector of the designs of one kind family (crosses and checkers).
@@ -335,6 +337,19 @@ impl PrintedDetector {
         if verdict.salience < p.min_salience {
             return Err(Rejection::Texture);
         }
+        // A target is one instance of its design on the ground; paving, a
+        // panel grid or a lattice repeats it at its own pitch. The design
+        // drawn one board further along either line must not match too.
+        for (k, d) in [dirs[0], dirs[1]].iter().enumerate() {
+            for sense in [-1.0, 1.0] {
+                let pitch = lengths[k] + lengths[k + 2];
+                let mut shifted = fit;
+                shifted.centre = add(centre, *d, sense * pitch);
+                if verify(img, design, &shifted).is_some_and(|v| v.score >= p.min_score) {
+                    return Err(Rejection::Repeats);
+                }
+            }
+        }
         let rms = {
             let mut all = Vec::new();
             for l in 0..2 {
@@ -425,7 +440,12 @@ impl Detector for PrintedDetector {
         seams: [bool; 4],
     ) -> Result<Vec<Detection>, DetectError> {
         let err = DetectError::at(origin);
-        let candidates = harmonic::candidates(tile, self.sizes).map_err(err)?;
+        let free = if self.designs.iter().any(|d| d.free == FreeArea::Quadrants) {
+            harmonic::Quadrants::Free
+        } else {
+            harmonic::Quadrants::Plain
+        };
+        let candidates = harmonic::candidates(tile, self.sizes, free).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
         let mut found: Vec<Found> = Vec::new();
         for c in &candidates {

@@ -1,0 +1,84 @@
+//! Real aerial photos: `../shared/real/copr-dev`, twenty 4272x2848 photos of
+//! printed crosses on sand with every sighting listed (`targets.csv`, good to
+//! about 1 px). Run with the default options and the built-in `cross`
+//! design (`--target-design cross`), nothing chosen for this set.
+
+use std::path::PathBuf;
+
+use gcp_tagger::pipeline::detect::{MarkerType, TargetDesign};
+
+use crate::support::*;
+
+fn real_set() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/real/copr-dev");
+    assert!(
+        dir.join("targets.csv").is_file(),
+        "the real set is expected at {} (the shared folder beside the clone)",
+        dir.display()
+    );
+    dir
+}
+
+/// (image, x, y) of every listed sighting.
+fn sightings(dir: &std::path::Path) -> Vec<(String, f64, f64)> {
+    let text = std::fs::read_to_string(dir.join("targets.csv")).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (
+                f[0].to_string(),
+                f[1].parse().unwrap(),
+                f[2].parse().unwrap(),
+            )
+        })
+        .collect()
+}
+
+/// At least 32 of the 33 sightings found within 3 px, at most one false
+/// detection over the twenty photos.
+#[test]
+fn printed_crosses_on_real_photos_are_found_from_the_cross_design() {
+    let dir = real_set();
+    let truth = sightings(&dir);
+    assert_eq!(truth.len(), 33);
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir.join("images"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    paths.sort();
+    assert_eq!(paths.len(), 20);
+    let mut opts = options("EPSG:32611", &[MarkerType::Crosshair]);
+    opts.frame.detector.designs = vec![TargetDesign::preset("cross").unwrap()];
+    let outcomes = run(&paths, &opts);
+    let mut found: Vec<(String, (f64, f64))> = Vec::new();
+    for outcome in outcomes {
+        let frame = outcome.expect("frame processed");
+        for t in &frame.targets {
+            found.push((frame.image.clone(), t.detection.center));
+        }
+    }
+    let hits = truth
+        .iter()
+        .filter(|(img, x, y)| {
+            found
+                .iter()
+                .any(|(i, c)| i == img && dist(*c, (*x, *y)) <= 3.0)
+        })
+        .count();
+    let false_detections: Vec<_> = found
+        .iter()
+        .filter(|(i, c)| {
+            !truth
+                .iter()
+                .any(|(img, x, y)| img == i && dist(*c, (*x, *y)) <= 3.0)
+        })
+        .collect();
+    eprintln!(
+        "real set: {hits} of {} sightings within 3 px, {} false: {false_detections:?}",
+        truth.len(),
+        false_detections.len()
+    );
+    assert!(hits >= 32, "{hits} of 33 sightings found");
+    assert!(false_detections.len() <= 1, "false: {false_detections:?}");
+}

@@ -270,6 +270,13 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
         }
         None => None,
     };
+    let designs = match &args.target_design {
+        Some(arg) => {
+            let design = TargetDesign::from_name_or_file(arg).map_err(usage)?;
+            vec![design]
+        }
+        None => Vec::new(),
+    };
     let inputs = collect_inputs(&args.inputs).map_err(usage)?;
     if inputs.is_empty() {
         eprintln!("error: no image files (.jpg, .tif, .png) found in the inputs");
@@ -277,16 +284,9 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
     }
 
     let mut modes = args.marker_type.clone();
-    let designs = match &args.target_design {
-        Some(arg) => {
-            let design = TargetDesign::from_name_or_file(arg).map_err(usage)?;
-            // A design names its mode: it is searched for even when
-            // --marker-type does not list that mode.
-            modes.push(design.marker_type());
-            vec![design]
-        }
-        None => Vec::new(),
-    };
+    // A design names its mode: it is searched for even when --marker-type
+    // does not list that mode.
+    modes.extend(designs.iter().map(|d| d.marker_type()));
     modes.sort();
     modes.dedup();
     let frame = FrameOptions::new(

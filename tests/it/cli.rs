@@ -169,6 +169,40 @@ fn nothing_usable_and_usage_errors_have_their_own_exit_codes() {
         "{}",
         stderr(&o)
     );
+
+    // Target designs: a bad description or an unknown name is one line
+    // naming the file and what is wrong, before any frame is read.
+    let design = dir.path().join("design.json");
+    std::fs::write(
+        &design,
+        r#"{"name":"club","kind":"cross","bar_width":[0.3,0.1]}"#,
+    )
+    .unwrap();
+    for (arg, says) in [
+        (
+            design.to_str().unwrap(),
+            "bar_width [0.3, 0.1] must satisfy",
+        ),
+        (
+            "crosss",
+            "neither a preset (cross, checker) nor a readable file",
+        ),
+    ] {
+        let o = detect(&[
+            dir.path().to_str().unwrap(),
+            "--crs",
+            "EPSG:4326",
+            "--target-design",
+            arg,
+            "-o",
+            "x.csv",
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        let err = stderr(&o);
+        assert!(err.starts_with("error: ") && err.contains(says), "{err}");
+        assert!(err.contains(arg), "names the design: {err}");
+        assert_eq!(err.lines().count(), 1, "one line: {err}");
+    }
 }
 
 /// Same input, same bytes, with one worker or two, CSV and GeoJSON.

@@ -12,7 +12,8 @@
 //! starting 352 px apart on these frames), `LIFTED=1` the reason of each
 //! rejected candidate's second look (shadow lifted) next to its first's,
 //! `MISSCROP=1` a crop of each missed target (`/tmp/crops/miss*.png`),
-//! `TRUTHCROP=1` (with `ACCEPTED=1`) of every target; on clutter,
+//! `TRUTHCROP=1` (with `ACCEPTED=1`) of every target; `DESIGN=cross,checker`
+//! (preset names or JSON files) runs the design detector; on clutter,
 //! `ONLY=circle` (or `crosshair`) runs that mode alone.
 
 use std::collections::BTreeMap;
@@ -101,13 +102,17 @@ fn main() {
                 // (a size in metres over a GSD of 1 cm).
                 target_size_m: expect_m,
                 gsd_cm: expect_m.map(|_| 1.0),
-                // DESIGN=file.json: look for that design only.
+                // DESIGN=cross,checker (preset names or JSON files): look
+                // for those designs, found from their description.
                 designs: std::env::var("DESIGN")
                     .ok()
-                    .map(|p| {
-                        let text = std::fs::read_to_string(p).expect("DESIGN: a readable file");
-                        vec![gcp_tagger::pipeline::detect::TargetDesign::from_json(&text)
-                            .expect("DESIGN: a valid design")]
+                    .map(|list| {
+                        list.split(',')
+                            .map(|d| {
+                                gcp_tagger::pipeline::detect::TargetDesign::from_name_or_file(d)
+                                    .expect("DESIGN")
+                            })
+                            .collect()
                     })
                     .unwrap_or_default(),
                 ..DetectorConfig::default()

@@ -337,18 +337,8 @@ impl PrintedDetector {
         if verdict.salience < p.min_salience {
             return Err(Rejection::Texture);
         }
-        // A target is one instance of its design on the ground; paving, a
-        // panel grid or a lattice repeats it at its own pitch. The design
-        // drawn one board further along either line must not match too.
-        for (k, d) in [dirs[0], dirs[1]].iter().enumerate() {
-            for sense in [-1.0, 1.0] {
-                let pitch = lengths[k] + lengths[k + 2];
-                let mut shifted = fit;
-                shifted.centre = add(centre, *d, sense * pitch);
-                if verify(img, design, &shifted).is_some_and(|v| v.score >= p.min_score) {
-                    return Err(Rejection::Repeats);
-                }
-            }
+        if repeats(img, design, &fit, p) {
+            return Err(Rejection::Repeats);
         }
         let rms = {
             let mut all = Vec::new();
@@ -375,6 +365,34 @@ impl PrintedDetector {
         })
     }
 }
+
+/// Whether the design, verified under `fit`, matches again about one board
+/// further along either line: a target is one instance of its design on
+/// the ground, while paving, a panel grid or any lattice repeats it at its
+/// own pitch. The pitch is searched from [`REPEAT_PITCH`] of the board's
+/// side, since an arm of a lattice ends at the next line's near edge.
+fn repeats(img: &GreyView, design: &TargetDesign, fit: &Fit, p: &Params) -> bool {
+    for k in 0..2 {
+        let board = fit.lengths[k] + fit.lengths[k + 2];
+        let step = (board / 40.0).max(0.75);
+        for sense in [-1.0, 1.0] {
+            let mut t = REPEAT_PITCH.0 * board;
+            while t <= REPEAT_PITCH.1 * board {
+                let mut shifted = *fit;
+                shifted.centre = add(fit.centre, fit.dirs[k], sense * t);
+                if verify(img, design, &shifted).is_some_and(|v| v.score >= p.min_score) {
+                    return true;
+                }
+                t += step;
+            }
+        }
+    }
+    false
+}
+
+/// Pitches, in board sides, at which a lattice's next copy of the design
+/// is looked for.
+const REPEAT_PITCH: (f64, f64) = (0.8, 1.3);
 
 /// Whether `p`, a point on or past the tile's edge, lies beyond a side that
 /// is a seam with another tile (left, top, right, bottom).

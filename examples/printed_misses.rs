@@ -13,7 +13,8 @@
 //! rejected candidate's second look (shadow lifted) next to its first's,
 //! `MISSCROP=1` a crop of each missed target (`/tmp/crops/miss*.png`),
 //! `TRUTHCROP=1` (with `ACCEPTED=1`) of every target; `DESIGN=cross,checker`
-//! (preset names or JSON files) runs the design detector; on clutter,
+//! (preset names or JSON files) runs the design detector; `FRAMES=dir`
+//! keeps the frames; on clutter,
 //! `ONLY=circle` (or `crosshair`) runs that mode alone.
 
 use std::collections::BTreeMap;
@@ -133,6 +134,11 @@ fn main() {
             printed_scene(2400, 1800, 30, mode, (40.0, 120.0), seed)
         };
         let (img, truth) = render(&scene).unwrap();
+        if let Ok(dir) = std::env::var("FRAMES") {
+            // FRAMES=dir: keep each frame, to run the CLI on.
+            let path = std::path::Path::new(&dir).join(format!("frame{seed}.png"));
+            write_image(&path, &img, SampleFormat::Png, None).unwrap();
+        }
         let path = dir.path().join(format!("{mode}{seed}.png"));
         write_image(&path, &img, SampleFormat::Png, None).unwrap();
         std::fs::write(&log_path, b"").unwrap();

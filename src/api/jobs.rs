@@ -46,6 +46,8 @@ pub struct UploadQuery {
     target_size_m: Option<f64>,
     /// Expected ground sample distance in cm per pixel (default: from the frame's georeference).
     gsd_cm: Option<f64>,
+    /// A printed target's design: a preset name (`cross`, `checker`) or the design as JSON text.
+    target_design: Option<String>,
 }
 
 /// A frame as a multipart part.

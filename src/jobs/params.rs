@@ -4,7 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::pipeline::detect::{AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType};
+use crate::pipeline::detect::{
+    AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType, TargetDesign,
+};
 use crate::pipeline::frame::{
     FrameOptions, InvalidSetting, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE,
 };
@@ -46,6 +48,12 @@ pub struct JobParams {
     /// Expected ground sample distance, cm per pixel (default: from the
     /// frame's georeference when it has one).
     pub gsd_cm: Option<f64>,
+    /// A printed target's design, found from its description: a preset
+    /// name (`cross`, `checker`) or the design as JSON text (see the
+    /// README's "Printed targets"). Stored in canonical JSON.
+    #[serde(default)]
+    #[schema(example = "cross")]
+    pub target_design: Option<String>,
 }
 
 impl Default for JobParams {
@@ -62,6 +70,7 @@ impl Default for JobParams {
             min_target_px: 16.0,
             target_size_m: None,
             gsd_cm: None,
+            target_design: None,
         }
     }
 }
@@ -79,6 +88,7 @@ pub const PARAM_KEYS: &[&str] = &[
     "min_target_px",
     "target_size_m",
     "gsd_cm",
+    "target_design",
 ];
 
 impl JobParams {
@@ -121,6 +131,7 @@ impl JobParams {
                     p.target_size_m = Some(value.parse().map_err(|_| number("a number"))?)
                 }
                 "gsd_cm" => p.gsd_cm = Some(value.parse().map_err(|_| number("a number"))?),
+                "target_design" => p.target_design = Some(value.to_string()),
                 _ => unreachable!("every key in PARAM_KEYS is handled"),
             }
         }
@@ -141,6 +152,22 @@ impl JobParams {
                     .map_err(|e| invalid("marker_types", e))?,
             );
         }
+        // A design is a preset's name or inline JSON, never a path: a
+        // client's string must not name a file on the server.
+        let design = match self.target_design.as_deref().map(str::trim) {
+            None => None,
+            Some(text) if text.starts_with('{') => Some(
+                TargetDesign::from_json(text)
+                    .map_err(|e| invalid("target_design", e.to_string()))?,
+            ),
+            Some(name) => Some(TargetDesign::preset(name).ok_or_else(|| {
+                invalid(
+                    "target_design",
+                    format!("{name:?} is neither a preset (cross, checker) nor a JSON design"),
+                )
+            })?),
+        };
+        modes.extend(design.iter().map(|d| d.marker_type()));
         modes.sort();
         modes.dedup();
         let dictionary: ArucoDictionary = self
@@ -167,9 +194,11 @@ impl JobParams {
                 apriltag_family: family,
                 min_target_px: self.min_target_px,
                 max_refine_shift_px: self.max_refine_shift_px,
-                target_size_m: self.target_size_m,
                 gsd_cm: self.gsd_cm,
-                designs: Vec::new(),
+                target_size_m: self
+                    .target_size_m
+                    .or(design.as_ref().and_then(|d| d.size_m)),
+                designs: design.iter().cloned().collect(),
             },
             self.tile_size,
             self.max_target_px,
@@ -184,6 +213,9 @@ impl JobParams {
             dictionary: dictionary.to_string(),
             apriltag_family: family.to_string(),
             crs: self.crs.trim().to_string(),
+            target_design: design
+                .as_ref()
+                .map(|d| serde_json::to_string(d).expect("a design serialises")),
             ..self.clone()
         };
         Ok((canonical, options))
@@ -221,5 +253,24 @@ mod tests {
             .check()
             .unwrap_err();
         assert_eq!(e.field, "crs");
+
+        // A design by preset name is stored as its canonical JSON, which
+        // reads back to the same design and adds its mode.
+        let p = JobParams::from_pairs([("target_design", "cross")]).unwrap();
+        let (canonical, options) = p.check().unwrap();
+        assert!(options.detector.modes.contains(&MarkerType::Crosshair));
+        assert_eq!(
+            options.detector.designs,
+            vec![TargetDesign::preset("cross").unwrap()]
+        );
+        let again = canonical.check().unwrap().0;
+        assert_eq!(again, canonical);
+        for bad in ["star", r#"{"name":"x","kind":"cross"}"#, "/etc/passwd"] {
+            let e = JobParams::from_pairs([("target_design", bad)])
+                .unwrap()
+                .check()
+                .unwrap_err();
+            assert_eq!(e.field, "target_design", "{bad}");
+        }
     }
 }

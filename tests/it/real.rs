@@ -82,3 +82,66 @@ fn printed_crosses_on_real_photos_are_found_from_the_cross_design() {
     assert!(hits >= 32, "{hits} of 33 sightings found");
     assert!(false_detections.len() <= 1, "false: {false_detections:?}");
 }
+
+/// The same design through the service: a real photo uploaded with
+/// `target_design=cross` gives the command line's bytes, with its three
+/// sightings among them.
+#[test]
+fn the_service_finds_the_same_crosses_from_the_design() {
+    let dir = real_set();
+    let photo = dir.join("images/IMG_0052.jpg");
+    let data = tempfile::tempdir().unwrap();
+    let server = crate::server::Server::start(&data.path().join("d"), &[]);
+    let r = server
+        .client
+        .post(server.url(
+            "/v1/jobs?crs=EPSG:32611&marker_types=crosshair&target_design=cross&name=IMG_0052.jpg",
+        ))
+        .header("content-type", "image/jpeg")
+        .body(std::fs::read(&photo).unwrap())
+        .send()
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let job: serde_json::Value = r.json().unwrap();
+    let id = job["id"].as_str().unwrap();
+    let done = server.wait_job(id);
+    assert_eq!(done["state"], "succeeded", "{done}");
+    let csv = server.get_text(&format!("/v1/jobs/{id}/results.csv"));
+
+    let out = data.path().join("cli.csv");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .args(["detect", photo.to_str().unwrap(), "--crs", "EPSG:32611"])
+        .args([
+            "--marker-type",
+            "crosshair",
+            "--target-design",
+            "cross",
+            "-q",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(csv, std::fs::read_to_string(&out).unwrap());
+
+    let truth: Vec<_> = sightings(&dir)
+        .into_iter()
+        .filter(|(img, _, _)| img == "IMG_0052.jpg")
+        .collect();
+    assert_eq!(truth.len(), 3);
+    let centres: Vec<(f64, f64)> = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[3].parse().unwrap(), f[4].parse().unwrap())
+        })
+        .collect();
+    for (_, x, y) in &truth {
+        assert!(
+            centres.iter().any(|c| dist(*c, (*x, *y)) <= 3.0),
+            "({x}, {y}) not in {csv}"
+        );
+    }
+}

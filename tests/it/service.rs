@@ -334,6 +334,18 @@ fn bad_requests_get_problem_json_with_stable_codes() {
         "invalid_parameter",
     );
     assert_eq!(p["field"], "crs");
+    // A target design is a preset or inline JSON; never a server path.
+    for design in ["star", "%2Fetc%2Fpasswd", "%7B%22name%22%3A%22x%22%7D"] {
+        let p = problem(
+            post(&format!("/v1/jobs?target_design={design}"))
+                .body("x")
+                .send()
+                .unwrap(),
+            422,
+            "invalid_parameter",
+        );
+        assert_eq!(p["field"], "target_design", "{design}");
+    }
     problem(
         post("/v1/jobs?tile_size=12").body("x").send().unwrap(),
         422,

@@ -28,6 +28,8 @@ use super::profile::{self as pr, add, unit};
 use super::refine::{intersect, GreyView};
 use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
+#[cfg(test)]
+mod tests;
 mod verify;
 mod walk;
 

@@ -1,0 +1,137 @@
+//! The design detector on rendered targets: markings that touch a bar
+//! (which the generator's one marking never does), a lattice of the same
+//! design, and texture.
+
+use opencv::core::Mat;
+use opencv::prelude::*;
+
+use super::super::design::TargetDesign;
+use super::super::test_image::render_image;
+use super::super::{Detection, Detector, MarkerType, SizeRange};
+use super::PrintedDetector;
+
+/// The detector with `designs` run on a w x w image as one tile.
+fn detect_in(data: &[u8], w: usize, designs: &[&str]) -> Vec<Detection> {
+    let tile = Mat::from_slice(data)
+        .and_then(|m| m.reshape(1, w as i32)?.try_clone())
+        .expect("tile");
+    let designs = designs
+        .iter()
+        .map(|n| TargetDesign::preset(n).unwrap())
+        .collect();
+    let sizes = SizeRange {
+        min_px: 16.0,
+        max_px: 200.0,
+        reach_px: 200.0,
+    };
+    PrintedDetector::new(MarkerType::Crosshair, designs, sizes)
+        .detect(&tile, (0, 0), [false; 4])
+        .expect("detect")
+}
+
+/// Distance of point (x, y) from the segment a-b.
+fn to_segment((x, y): (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let t = (((x - a.0) * dx + (y - a.1) * dy) / (dx * dx + dy * dy)).clamp(0.0, 1.0);
+    (x - a.0 - t * dx).hypot(y - a.1 - t * dy)
+}
+
+/// A 120 px white cross (bars 14 px) on a black board on sand-grey ground,
+/// turned by `angle`, its centre at a non-integer position; `marking` draws
+/// white strokes 5 px wide in the board's frame (u along bar A).
+fn marked_cross(angle: f64, marking: &[((f64, f64), (f64, f64))]) -> (Vec<u8>, (f64, f64)) {
+    let (w, c, half, half_bar) = (240usize, (120.37, 118.81), 60.0, 7.0);
+    let (co, si) = (angle.cos(), angle.sin());
+    let data = render_image(w, |x, y| {
+        let (dx, dy) = (x - c.0, y - c.1);
+        let (u, v) = (co * dx + si * dy, -si * dx + co * dy);
+        if u.abs() > half || v.abs() > half {
+            return 170.0;
+        }
+        let on_mark = marking
+            .iter()
+            .any(|(a, b)| to_segment((u, v), *a, *b) < 2.5);
+        if u.abs() < half_bar || v.abs() < half_bar || on_mark {
+            235.0
+        } else {
+            25.0
+        }
+    });
+    (data, c)
+}
+
+#[test]
+fn markings_touching_the_bars_neither_stop_nor_break_a_cross() {
+    // In the (+, -) quadrant: a short bar off one arm, a hook, a triangle
+    // on both bars, a diagonal bar from the crossing.
+    let markings: [&[((f64, f64), (f64, f64))]; 5] = [
+        &[],
+        &[((7.0, -30.0), (30.0, -30.0))],
+        &[
+            ((7.0, -40.0), (25.0, -40.0)),
+            ((25.0, -40.0), (25.0, -30.0)),
+        ],
+        &[((7.0, -45.0), (45.0, -7.0))],
+        &[((10.0, -10.0), (40.0, -40.0))],
+    ];
+    for (k, marking) in markings.iter().enumerate() {
+        for angle in [0.3, 1.1] {
+            let (data, c) = marked_cross(angle, marking);
+            let found = detect_in(&data, 240, &["cross"]);
+            assert_eq!(found.len(), 1, "marking {k}, angle {angle}: {found:?}");
+            let d = &found[0];
+            let err = (d.center.0 - c.0).hypot(d.center.1 - c.1);
+            assert!(
+                err < 0.15,
+                "marking {k}, angle {angle}: centre off by {err}"
+            );
+            assert!((d.size_px - 120.0).abs() < 8.0, "size {}", d.size_px);
+            assert!(d.confidence > 0.9, "confidence {}", d.confidence);
+        }
+    }
+}
+
+#[test]
+fn a_lattice_of_the_design_is_not_a_target() {
+    // Light lines 8 px wide every 50 px on dark panels: each crossing is a
+    // cross by itself (checked on an isolated copy), the lattice is not.
+    let (w, pitch, half_line) = (300usize, 50.0, 4.0);
+    let line =
+        |x: f64| ((x - 12.3).rem_euclid(pitch) - pitch / 2.0).abs() > pitch / 2.0 - half_line;
+    let lattice = render_image(w, |x, y| if line(x) || line(y) { 230.0 } else { 30.0 });
+    assert!(detect_in(&lattice, w, &["cross"]).is_empty());
+    // One cell of the same lattice cut out on plain ground is a cross.
+    let one = render_image(w, |x, y| {
+        let near = (x - 162.3).abs() < 46.0 && (y - 162.3).abs() < 46.0;
+        if !near {
+            170.0
+        } else if line(x) || line(y) {
+            230.0
+        } else {
+            30.0
+        }
+    });
+    let found = detect_in(&one, w, &["cross"]);
+    assert_eq!(found.len(), 1, "{found:?}");
+}
+
+#[test]
+fn a_checker_is_found_at_its_saddle_point() {
+    let (w, c) = (200usize, (99.62, 101.27));
+    let (co, si) = (0.4f64.cos(), 0.4f64.sin());
+    let data = render_image(w, |x, y| {
+        let (dx, dy) = (x - c.0, y - c.1);
+        let (u, v) = (co * dx + si * dy, -si * dx + co * dy);
+        if u.abs() > 40.0 || v.abs() > 40.0 {
+            150.0
+        } else if u * v > 0.0 {
+            225.0
+        } else {
+            30.0
+        }
+    });
+    let found = detect_in(&data, w, &["checker"]);
+    assert_eq!(found.len(), 1, "{found:?}");
+    let err = (found[0].center.0 - c.0).hypot(found[0].center.1 - c.1);
+    assert!(err < 0.1, "centre off by {err}");
+}

@@ -164,7 +164,7 @@ impl PrintedDetector {
         }
         // The arms are followed in log grey, where a shadow across the
         // target changes no difference.
-        let contrast = harmonic::log_grey(hi) - harmonic::log_grey(lo);
+        let mut contrast = harmonic::log_grey(hi) - harmonic::log_grey(lo);
         let (k, sign) = match design.kind {
             DesignKind::Cross => (
                 4,
@@ -277,6 +277,15 @@ impl PrintedDetector {
             if design.kind == DesignKind::Cross {
                 let all: Vec<f64> = arms.iter().flat_map(|a| a.widths.iter().copied()).collect();
                 width = pr::quantile(&all, 0.5);
+            }
+            // The ring's range mixes shadow and ground in; the profiles
+            // near the centre measure the design's own contrast.
+            let seen: Vec<f64> = arms
+                .iter()
+                .flat_map(|a| a.contrasts.iter().copied())
+                .collect();
+            if !seen.is_empty() {
+                contrast = pr::quantile(&seen, 0.5);
             }
         }
         let lengths = [0, 1, 2, 3].map(|i| arms[i].length);

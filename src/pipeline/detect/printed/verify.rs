@@ -175,8 +175,8 @@ const GROUND_RING: f64 = 1.35;
 /// Samples on the ground ring.
 const GROUND_SAMPLES: usize = 64;
 
-/// The ground's texture around the board: the median absolute deviation
-/// of samples on a square ring just outside it. A printed target stands out
+/// The ground's texture around the board: the median step between
+/// neighbouring samples on a square ring just outside it. A printed target stands out
 /// from the ground it lies on; a look-alike in foliage, gravel or rubble is
 /// no stronger than the texture it is part of.
 fn ground_texture(img: &GreyView, fit: &Fit) -> f64 {
@@ -201,11 +201,9 @@ fn ground_texture(img: &GreyView, fit: &Fit) -> f64 {
     if values.len() < GROUND_SAMPLES / 2 {
         return 0.0;
     }
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let m = median(&mut values);
-    let mut dev: Vec<f64> = values.iter().map(|g| (g - m).abs()).collect();
-    median(&mut dev)
+    // Steps between neighbours on the ring: an object's or a shadow's edge
+    // crossing the ring makes two of them, texture makes them all.
+    let mut steps: Vec<f64> = values.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    steps.sort_by(f64::total_cmp);
+    steps[steps.len() / 2]
 }

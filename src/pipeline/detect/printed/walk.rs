@@ -32,6 +32,9 @@ pub struct Arm {
     pub points: Vec<Pt>,
     /// Bar widths measured at those points.
     pub widths: Vec<f64>,
+    /// Log-grey contrast of the profiles that showed the board on both
+    /// sides (bar over its darker side, or the step).
+    pub contrasts: Vec<f64>,
     /// Profiles taken on the board (points or not).
     pub profiles: usize,
     /// Distance from the centre where the board ends along this arm.
@@ -173,6 +176,8 @@ fn bar_profile(
         // corner of the board. On the board, but no point.
         return true;
     }
+    arm.contrasts
+        .push(sign * (core_log - log_grey(left)).min(sign * (core_log - log_grey(right))));
     // Edges: where the profile crosses halfway between the bar and each side,
     // nearest the expected edges.
     let centre_idx = (half + at) / pr::STEP_PX;
@@ -208,6 +213,8 @@ fn step_profile(
     if sign * (log_grey(plus) - log_grey(minus)) < params.side_share * contrast {
         return false;
     }
+    arm.contrasts
+        .push(sign * (log_grey(plus) - log_grey(minus)));
     let centre_idx = half / pr::STEP_PX;
     let level = 0.5 * (plus + minus);
     if let Some(x) = pr::crossing(p, level, plus > minus, centre_idx) {

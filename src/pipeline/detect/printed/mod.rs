@@ -60,6 +60,10 @@ pub struct Params {
     /// Largest ratio of two opposite arms' lengths (perspective, a side
     /// partly hidden).
     pub max_arm_ratio: f64,
+    /// Largest correlation the design may reach again about one board
+    /// away (see `repeats`): a lattice's next copy, partly hidden or at
+    /// the lattice's edge, still reaches well over it.
+    pub max_repeat_score: f64,
     /// Measured sizes may fall this factor outside the searched range.
     pub size_slack: f64,
 }
@@ -76,6 +80,7 @@ impl Default for Params {
             max_fit_rms_px: 1.5,
             max_arm_ratio: 1.6,
             size_slack: 1.1,
+            max_repeat_score: 0.6,
         }
     }
 }
@@ -391,7 +396,7 @@ fn repeats(img: &GreyView, design: &TargetDesign, fit: &Fit, p: &Params) -> bool
             while t <= REPEAT_PITCH.1 * board {
                 let mut shifted = *fit;
                 shifted.centre = add(fit.centre, fit.dirs[k], sense * t);
-                if verify(img, design, &shifted).is_some_and(|v| v.score >= p.min_score) {
+                if verify(img, design, &shifted).is_some_and(|v| v.score >= p.max_repeat_score) {
                     return true;
                 }
                 t += step;
@@ -403,7 +408,7 @@ fn repeats(img: &GreyView, design: &TargetDesign, fit: &Fit, p: &Params) -> bool
 
 /// Pitches, in board sides, at which a lattice's next copy of the design
 /// is looked for.
-const REPEAT_PITCH: (f64, f64) = (0.8, 1.3);
+const REPEAT_PITCH: (f64, f64) = (0.95, 1.3);
 
 /// Whether `p`, a point on or past the tile's edge, lies beyond a side that
 /// is a seam with another tile (left, top, right, bottom).

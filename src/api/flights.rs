@@ -136,7 +136,7 @@ async fn submit_flight_inner(
             .with_field("results_to"));
         }
         let sourced = sources::receive(&state, req, true).await?;
-        let target = Target::NewFlight(params, sourced.results_to);
+        let target = Target::NewFlight(Box::new(params), sourced.results_to);
         let (flight, jobs) = sources::commit(&state, sourced.jobs, target, idem).await?;
         (flight, jobs, sourced.skipped)
     } else {
@@ -148,7 +148,7 @@ async fn submit_flight_inner(
         let (store, data) = (state.store.clone(), state.data.clone());
         let max = state.limits.max_frames_per_flight;
         let (flight, jobs) = tokio::task::spawn_blocking(move || {
-            let target = Target::NewFlight(params, results_to);
+            let target = Target::NewFlight(Box::new(params), results_to);
             upload::commit(&store, &data, upload, target, idem, max)
         })
         .await

@@ -123,7 +123,7 @@ async fn submit_job_inner(
             &store,
             &data,
             upload,
-            Target::NewFlight(params, None),
+            Target::NewFlight(Box::new(params), None),
             idem,
             1,
         )

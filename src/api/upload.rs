@@ -384,7 +384,7 @@ fn disposition_filename(headers: &HeaderMap) -> Option<String> {
 pub enum Target {
     /// A new flight with its parameters and, optionally, an
     /// `s3://bucket/prefix/` its results are written to when it finishes.
-    NewFlight(JobParams, Option<String>),
+    NewFlight(Box<JobParams>, Option<String>),
     Flight(FlightId),
 }
 

@@ -199,6 +199,7 @@ impl PrintedDetector {
         // guesses, the second along the whole arms from the first's lines.
         let mut arms: [Arm; 4] = Default::default();
         let mut lines = [(centre, dirs[0]); 2];
+        let mut rms = [0.0; 2];
         for pass in 0..2 {
             let limit = if pass == 0 {
                 0.35 * c.size
@@ -250,32 +251,20 @@ impl PrintedDetector {
                 let points = (a.points.len() + b.points.len()) as f64;
                 let wanted = (p.min_coverage * (a.profiles + b.profiles) as f64).max(6.0);
                 if points < wanted {
-                    tracing::trace!(pass, l, arms = ?arms.iter().map(|a| (a.points.len(), a.profiles, a.length as i32)).collect::<Vec<_>>(), width, "coverage");
                     return Err(Rejection::ArmUnclear);
                 }
             }
             for (l, line) in lines.iter_mut().enumerate() {
-                let pts: Vec<Pt> = arms[l]
-                    .points
-                    .iter()
-                    .chain(&arms[l + 2].points)
-                    .copied()
-                    .collect();
-                let (fitted, inl) = pr::robust_line(&pts).ok_or(Rejection::LineFit)?;
-                if pass == 1 && pr::line_rms(&inl, fitted) > p.max_fit_rms_px {
-                    tracing::trace!(
-                        rms = pr::line_rms(&inl, fitted),
-                        n = inl.len(),
-                        of = pts.len(),
-                        "rms"
-                    );
+                let (fitted, inliers) =
+                    pr::robust_line(&on_line(&arms, l, |a| &a.points)).ok_or(Rejection::LineFit)?;
+                rms[l] = pr::line_rms(&inliers, fitted);
+                if pass == 1 && rms[l] > p.max_fit_rms_px {
                     return Err(Rejection::LineFit);
                 }
                 *line = fitted;
             }
             centre = intersect(lines[0], lines[1]).ok_or(Rejection::LineFit)?;
             if geometry::dist(centre, c.centre) > 0.3 * c.size {
-                tracing::trace!(?centre, "moved");
                 return Err(Rejection::LineFit);
             }
             dirs = [orient(lines[0].1, dirs[0]), orient(lines[1].1, dirs[1])];
@@ -297,18 +286,12 @@ impl PrintedDetector {
         for i in 0..2 {
             let (a, b) = (lengths[i], lengths[i + 2]);
             if a.max(b) > p.max_arm_ratio * a.min(b) {
-                tracing::trace!(?lengths, ?centre, ?dirs, "uneven");
                 return Err(Rejection::UnevenArms);
             }
         }
         let bar = match design.kind {
             DesignKind::Cross => [0, 1].map(|l| {
-                let w: Vec<f64> = arms[l]
-                    .widths
-                    .iter()
-                    .chain(&arms[l + 2].widths)
-                    .copied()
-                    .collect();
+                let w = on_line(&arms, l, |a| &a.widths);
                 if w.is_empty() {
                     width
                 } else {
@@ -339,44 +322,18 @@ impl PrintedDetector {
         if verdict.contrast < p.min_contrast || verdict.score < p.min_score {
             return Err(Rejection::NoMatch);
         }
-        tracing::debug!(
-            x = centre.0,
-            y = centre.1,
-            size,
-            tile = true,
-            design = %design.name,
-            score = verdict.score,
-            contrast = verdict.contrast,
-            salience = verdict.salience,
-            "printed candidate verified"
-        );
         if verdict.salience < p.min_salience {
             return Err(Rejection::Texture);
         }
         if repeats(img, design, &fit, p) {
             return Err(Rejection::Repeats);
         }
-        let rms = {
-            let mut all = Vec::new();
-            for l in 0..2 {
-                let pts: Vec<Pt> = arms[l]
-                    .points
-                    .iter()
-                    .chain(&arms[l + 2].points)
-                    .copied()
-                    .collect();
-                if let Some((line, inl)) = pr::robust_line(&pts) {
-                    all.push(pr::line_rms(&inl, line));
-                }
-            }
-            (all.iter().map(|r| r * r).sum::<f64>() / all.len().max(1) as f64).sqrt()
-        };
         Ok(Found {
             centre,
             corners: fit.corners(),
             size,
             shift: geometry::dist(centre, c.centre),
-            rms,
+            rms: (0.5 * (rms[0] * rms[0] + rms[1] * rms[1])).sqrt(),
             confidence: verdict.score.clamp(0.0, 1.0),
         })
     }
@@ -418,6 +375,15 @@ fn crosses_seam(img: &GreyView, p: Pt, seams: [bool; 4]) -> bool {
         || (seams[1] && p.1 <= 0.0)
         || (seams[2] && p.0 >= w)
         || (seams[3] && p.1 >= h)
+}
+
+/// What arms `l` and `l + 2` (one line) measured, together.
+fn on_line<T: Copy>(arms: &[Arm; 4], l: usize, of: impl Fn(&Arm) -> &Vec<T>) -> Vec<T> {
+    of(&arms[l])
+        .iter()
+        .chain(of(&arms[l + 2]))
+        .copied()
+        .collect()
 }
 
 /// Direction of arm `i` (0..4): the two lines' directions and their opposites.
@@ -483,14 +449,6 @@ impl Detector for PrintedDetector {
         let img = grey_view(tile).map_err(err)?;
         let mut found: Vec<Found> = Vec::new();
         for c in &candidates {
-            tracing::trace!(
-                x = c.centre.0 + origin.0 as f64,
-                y = c.centre.1 + origin.1 as f64,
-                size = c.size,
-                score = c.score,
-                symmetry = ?c.symmetry,
-                "printed candidate"
-            );
             // A candidate on a target already found (another pyramid level's
             // response to it) is not analysed again.
             if found

@@ -29,6 +29,9 @@ fn detect_in(data: &[u8], w: usize, designs: &[&str]) -> Vec<Detection> {
         .expect("detect")
 }
 
+/// A marking's stroke: a segment between two points of the board's frame.
+type Stroke = ((f64, f64), (f64, f64));
+
 /// Distance of point (x, y) from the segment a-b.
 fn to_segment((x, y): (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
@@ -39,7 +42,7 @@ fn to_segment((x, y): (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
 /// A 120 px white cross (bars 14 px) on a black board on sand-grey ground,
 /// turned by `angle`, its centre at a non-integer position; `marking` draws
 /// white strokes 5 px wide in the board's frame (u along bar A).
-fn marked_cross(angle: f64, marking: &[((f64, f64), (f64, f64))]) -> (Vec<u8>, (f64, f64)) {
+fn marked_cross(angle: f64, marking: &[Stroke]) -> (Vec<u8>, (f64, f64)) {
     let (w, c, half, half_bar) = (240usize, (120.37, 118.81), 60.0, 7.0);
     let (co, si) = (angle.cos(), angle.sin());
     let data = render_image(w, |x, y| {
@@ -64,7 +67,7 @@ fn marked_cross(angle: f64, marking: &[((f64, f64), (f64, f64))]) -> (Vec<u8>, (
 fn markings_touching_the_bars_neither_stop_nor_break_a_cross() {
     // In the (+, -) quadrant: a short bar off one arm, a hook, a triangle
     // on both bars, a diagonal bar from the crossing.
-    let markings: [&[((f64, f64), (f64, f64))]; 5] = [
+    let markings: [&[Stroke]; 5] = [
         &[],
         &[((7.0, -30.0), (30.0, -30.0))],
         &[

@@ -73,27 +73,31 @@ pub fn follow(
         Feature::Step { .. } => 1.5,
     };
     let mut arm = Arm::default();
-    let mut profile = Vec::new();
+    let mut samples = Vec::new();
     let mut off = 0usize;
     let mut first_off = 0.0;
     // Consecutive profiles off the board that end the arm: two pixels' worth.
     let end_after = (2.0 / step).ceil().max(2.0) as usize;
+    let need = params.side_share * contrast;
     let mut t = start;
     arm.length = start;
     while t <= limit {
         let base = add(centre, dir, t);
-        if pr::line(img, base, n, half, &mut profile).is_none() {
+        if pr::line(img, base, n, half, &mut samples).is_none() {
             // The tile's edge: the arm cannot be followed to its end.
             arm.left_tile = true;
             return arm;
         }
+        let across = Across {
+            samples: &samples,
+            half,
+            side_from,
+            base,
+            n,
+        };
         let on_board = match feature {
-            Feature::Bar { sign } => bar_profile(
-                &profile, half, side_from, sign, width, contrast, params, &mut arm, base, n,
-            ),
-            Feature::Step { sign } => step_profile(
-                &profile, half, side_from, sign, contrast, params, &mut arm, base, n,
-            ),
+            Feature::Bar { sign } => across.bar(sign, width, need, params, &mut arm),
+            Feature::Step { sign } => across.step(sign, need, &mut arm),
         };
         if on_board {
             arm.profiles += 1;
@@ -116,112 +120,103 @@ pub fn follow(
     arm
 }
 
-/// Mean of the profile's samples between `from` and `to` pixels from its
-/// centre (signed).
-fn band_mean(p: &[f64], half: f64, from: f64, to: f64) -> f64 {
-    let idx = |x: f64| {
-        ((x + half) / pr::STEP_PX)
-            .round()
-            .clamp(0.0, (p.len() - 1) as f64) as usize
-    };
-    let (a, b) = (idx(from.min(to)), idx(from.max(to)));
-    pr::mean(p, a, b + 1)
-}
-
-#[allow(clippy::too_many_arguments)]
-fn bar_profile(
-    p: &[f64],
+/// One profile across the feature: samples every [`pr::STEP_PX`] from
+/// `-half` to `half` along `n`, centred on `base`; the sides are measured
+/// from `side_from` outward.
+struct Across<'a> {
+    samples: &'a [f64],
     half: f64,
     side_from: f64,
-    sign: f64,
-    width: f64,
-    contrast: f64,
-    params: &Params,
-    arm: &mut Arm,
     base: Pt,
     n: Pt,
-) -> bool {
-    // The bar where the profile is lightest (darkest) near its middle, then
-    // its sides a band's width out from there.
-    let reach = 0.5 * width + 2.0;
-    let step_px = pr::STEP_PX;
-    let mut at = 0.0;
-    let mut best = f64::MIN;
-    let mut x = -reach;
-    while x <= reach {
-        let v = sign * band_mean(p, half, x - 0.25 * width, x + 0.25 * width);
-        if v > best {
-            best = v;
-            at = x;
-        }
-        x += step_px;
-    }
-    let outer = 1.5 * width + 2.0;
-    let left = band_mean(p, half, at - outer, at - side_from);
-    let right = band_mean(p, half, at + side_from, at + outer);
-    let core = best;
-    let (l, r) = (sign * left, sign * right);
-    // Sides and bar compared in log grey, where a shadow is an offset.
-    let need = params.side_share * contrast;
-    let core_log = log_grey(sign * core);
-    let (l_board, r_board) = (
-        sign * (core_log - log_grey(left)) >= need,
-        sign * (core_log - log_grey(right)) >= need,
-    );
-    if !l_board && !r_board {
-        return false;
-    }
-    if !(l_board && r_board) {
-        // One side lighter than the board: a marking beside the bar, or a
-        // corner of the board. On the board, but no point.
-        return true;
-    }
-    arm.contrasts
-        .push(sign * (core_log - log_grey(left)).min(sign * (core_log - log_grey(right))));
-    // Edges: where the profile crosses halfway between the bar and each side,
-    // nearest the expected edges.
-    let centre_idx = (half + at) / pr::STEP_PX;
-    let hw = 0.5 * width / pr::STEP_PX;
-    let s: Vec<f64> = p.iter().map(|v| sign * v).collect();
-    let lo = pr::crossing(&s, 0.5 * (core + l), true, centre_idx - hw);
-    let hi = pr::crossing(&s, 0.5 * (core + r), false, centre_idx + hw);
-    if let (Some(a), Some(b)) = (lo, hi) {
-        let w = (b - a) * pr::STEP_PX;
-        if w > 0.0 && w >= params.width_band.0 * width && w <= params.width_band.1 * width {
-            let mid = pr::offset(0.5 * (a + b), half);
-            arm.points.push(add(base, n, mid));
-            arm.widths.push(w);
-        }
-    }
-    true
 }
 
-#[allow(clippy::too_many_arguments)]
-fn step_profile(
-    p: &[f64],
-    half: f64,
-    side_from: f64,
-    sign: f64,
-    contrast: f64,
-    params: &Params,
-    arm: &mut Arm,
-    base: Pt,
-    n: Pt,
-) -> bool {
-    let minus = band_mean(p, half, -half, -side_from);
-    let plus = band_mean(p, half, side_from, half);
-    if sign * (log_grey(plus) - log_grey(minus)) < params.side_share * contrast {
-        return false;
+impl Across<'_> {
+    /// Mean of the samples between `from` and `to` pixels from the
+    /// profile's centre (signed).
+    fn band_mean(&self, from: f64, to: f64) -> f64 {
+        let last = (self.samples.len() - 1) as f64;
+        let idx = |x: f64| ((x + self.half) / pr::STEP_PX).round().clamp(0.0, last) as usize;
+        pr::mean(self.samples, idx(from.min(to)), idx(from.max(to)) + 1)
     }
-    arm.contrasts
-        .push(sign * (log_grey(plus) - log_grey(minus)));
-    let centre_idx = half / pr::STEP_PX;
-    let level = 0.5 * (plus + minus);
-    if let Some(x) = pr::crossing(p, level, plus > minus, centre_idx) {
-        let off = pr::offset(x, half);
-        if off.abs() < half - side_from {
-            arm.points.push(add(base, n, off));
+
+    /// The point at `offset` pixels along the profile.
+    fn at(&self, offset: f64) -> Pt {
+        add(self.base, self.n, offset)
+    }
+
+    /// A bar lighter (`sign` +1) or darker than the board on both sides by
+    /// `need` in log grey: its centre-line point and width into `arm`.
+    /// Whether the profile is on the board (a side may show a marking).
+    fn bar(&self, sign: f64, width: f64, need: f64, params: &Params, arm: &mut Arm) -> bool {
+        // The bar where the profile is lightest (darkest) near its middle,
+        // then its sides a band's width out from there.
+        let reach = 0.5 * width + 2.0;
+        let (mut at, mut core) = (0.0, f64::MIN);
+        let mut x = -reach;
+        while x <= reach {
+            let v = sign * self.band_mean(x - 0.25 * width, x + 0.25 * width);
+            if v > core {
+                (core, at) = (v, x);
+            }
+            x += pr::STEP_PX;
         }
+        let outer = 1.5 * width + 2.0;
+        let left = self.band_mean(at - outer, at - self.side_from);
+        let right = self.band_mean(at + self.side_from, at + outer);
+        // Sides and bar compared in log grey, where a shadow is an offset.
+        let core_log = log_grey(sign * core);
+        let (l_step, r_step) = (
+            sign * (core_log - log_grey(left)),
+            sign * (core_log - log_grey(right)),
+        );
+        let (l_board, r_board) = (l_step >= need, r_step >= need);
+        if !l_board && !r_board {
+            return false;
+        }
+        if !(l_board && r_board) {
+            // One side lighter than the board: a marking beside the bar, or
+            // a corner of the board. On the board, but no point.
+            return true;
+        }
+        arm.contrasts.push(l_step.min(r_step));
+        // Edges: where the profile crosses halfway between the bar and each
+        // side, nearest the expected edges.
+        let centre_idx = (self.half + at) / pr::STEP_PX;
+        let hw = 0.5 * width / pr::STEP_PX;
+        let s: Vec<f64> = self.samples.iter().map(|v| sign * v).collect();
+        let lo = pr::crossing(&s, 0.5 * (core + sign * left), true, centre_idx - hw);
+        let hi = pr::crossing(&s, 0.5 * (core + sign * right), false, centre_idx + hw);
+        if let (Some(a), Some(b)) = (lo, hi) {
+            let w = (b - a) * pr::STEP_PX;
+            if w > 0.0 && w >= params.width_band.0 * width && w <= params.width_band.1 * width {
+                arm.points
+                    .push(self.at(pr::offset(0.5 * (a + b), self.half)));
+                arm.widths.push(w);
+            }
+        }
+        true
     }
-    true
+
+    /// A step whose +normal side is lighter (`sign` +1) or darker by `need`
+    /// in log grey: its edge point into `arm`. Whether the profile is on
+    /// the board.
+    fn step(&self, sign: f64, need: f64, arm: &mut Arm) -> bool {
+        let minus = self.band_mean(-self.half, -self.side_from);
+        let plus = self.band_mean(self.side_from, self.half);
+        let step = sign * (log_grey(plus) - log_grey(minus));
+        if step < need {
+            return false;
+        }
+        arm.contrasts.push(step);
+        let centre_idx = self.half / pr::STEP_PX;
+        let level = 0.5 * (plus + minus);
+        if let Some(x) = pr::crossing(self.samples, level, plus > minus, centre_idx) {
+            let off = pr::offset(x, self.half);
+            if off.abs() < self.half - self.side_from {
+                arm.points.push(self.at(off));
+            }
+        }
+        true
+    }
 }

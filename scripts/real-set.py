@@ -1,16 +1,17 @@
 #!/usr/bin/env python3
 """Scores a detection CSV against ../shared/real/copr-dev/targets.csv.
 
-Usage: scripts/real-set.py DETECTIONS.csv [TARGETS.csv]
-Prints sightings found within 3 px, false detections (none of a sighting's
-within 3 px... nor half a target away), and the centre errors.
+Usage: scripts/real-set.py [-v] DETECTIONS.csv [TARGETS.csv]
+Prints each missed sighting, then the count found within 3 px, the count of
+false detections (no sighting within 3 px; each listed with -v) and the
+median centre error of those found.
 """
 import csv
 import math
 import sys
 
-det_path = [a for a in sys.argv[1:] if a != "-v"][0]
 args = [a for a in sys.argv[1:] if a != "-v"]
+det_path = args[0]
 truth_path = args[1] if len(args) > 1 else "../shared/real/copr-dev/targets.csv"
 truth = [(r["image"], float(r["px_x"]), float(r["px_y"])) for r in csv.DictReader(open(truth_path))]
 rows = list(csv.DictReader(open(det_path)))

@@ -301,8 +301,11 @@ fn main() {
         e.sort_by(f64::total_cmp);
         if !e.is_empty() {
             let q = |p: f64| e[((e.len() - 1) as f64 * p).round() as usize];
+            // Truth ids alternate the two designs of the mode.
             eprintln!(
-                "  design {k}: median {:.3} px, p95 {:.3} px",
+                "  design {k}: {} found of {}, median {:.3} px, p95 {:.3} px",
+                e.len(),
+                (total + 1 - k) / 2,
                 q(0.5),
                 q(0.95)
             );

@@ -57,9 +57,9 @@ pub struct Verdict {
     pub score: f64,
     /// Mean grey level of the design's light parts less its dark parts.
     pub contrast: f64,
-    /// The contrast over the ground's own texture around the board (the
-    /// median grey-level step between samples 2 px apart there); infinite
-    /// when too little ground lies in the tile to tell.
+    /// The contrast over the ground's own texture around the board (see
+    /// `ground_texture`); the contrast itself when too little ground lies
+    /// in the tile to tell (the texture then counts as one grey level).
     pub salience: f64,
 }
 
@@ -76,8 +76,7 @@ const SIDE_MARGIN: f64 = 0.06;
 /// fifth of the board lies outside the image or too few samples remain.
 pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdict> {
     let lines = [(fit.centre, fit.dirs[0]), (fit.centre, fit.dirs[1])];
-    // Signed distance of p from line k (positive on the side of the other
-    // line's arm 1 or 0 direction).
+    // Distance of p from line k (signed; used as a magnitude).
     let dist = |p: Pt, k: usize| {
         let (c, d) = lines[k];
         (p.0 - c.0) * d.1 - (p.1 - c.1) * d.0
@@ -176,9 +175,9 @@ const GROUND_RING: f64 = 1.35;
 const GROUND_SAMPLES: usize = 64;
 
 /// The ground's texture around the board: the median step between
-/// neighbouring samples on a square ring just outside it. A printed target stands out
-/// from the ground it lies on; a look-alike in foliage, gravel or rubble is
-/// no stronger than the texture it is part of.
+/// neighbouring samples on a square ring just outside it. A printed target
+/// stands out from the ground it lies on; a look-alike in foliage, gravel
+/// or rubble is no stronger than the texture it is part of.
 fn ground_texture(img: &GreyView, fit: &Fit) -> f64 {
     let mut values = Vec::with_capacity(GROUND_SAMPLES);
     for k in 0..GROUND_SAMPLES {

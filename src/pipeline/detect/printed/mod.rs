@@ -34,7 +34,7 @@ mod verify;
 mod walk;
 
 use verify::{verify, Fit};
-use walk::{follow, Arm, Feature};
+use walk::{continuation, follow, Arm, Feature};
 
 /// Thresholds of the printed-target detector. The defaults are first
 /// settings, checked on generated frames (`examples/printed_misses.rs`,
@@ -63,6 +63,9 @@ pub struct Params {
     pub min_coverage: f64,
     /// Largest RMS distance, in pixels, of the points from their line.
     pub max_fit_rms_px: f64,
+    /// Largest distance, in pixels, between two opposite arms' median
+    /// offsets from their common line (see `arms_offset`).
+    pub max_arm_offset_px: f64,
     /// Largest ratio of two opposite arms' lengths (perspective, a side
     /// partly hidden).
     pub max_arm_ratio: f64,
@@ -72,6 +75,9 @@ pub struct Params {
     pub max_repeat_score: f64,
     /// Measured sizes may fall this factor outside the searched range.
     pub size_slack: f64,
+    /// Share of the profiles past an arm's end showing the feature again
+    /// (see `walk::continuation`) from which that arm runs on.
+    pub max_continuation: f64,
 }
 
 impl Default for Params {
@@ -84,9 +90,11 @@ impl Default for Params {
             width_band: (0.6, 1.5),
             min_coverage: 0.35,
             max_fit_rms_px: 1.5,
+            max_arm_offset_px: 1.0,
             max_arm_ratio: 1.6,
             size_slack: 1.1,
             max_repeat_score: 0.6,
+            max_continuation: 0.4,
         }
     }
 }
@@ -104,6 +112,8 @@ pub enum Rejection {
     RunsOn,
     /// A line fit failed or its points scatter.
     LineFit,
+    /// Opposite arms lie on two parallel lines, not one.
+    ArmsOffset,
     /// Opposite arms differ more than perspective explains.
     UnevenArms,
     /// Bar width or board size outside the design's or search's range.
@@ -114,6 +124,9 @@ pub enum Rejection {
     Texture,
     /// The design repeats one board away: a lattice, not a target.
     Repeats,
+    /// The bars or boundaries run on past the board on two or more arms:
+    /// a lattice or paving, not a target.
+    RunsPastBoard,
 }
 
 /// Detector of the designs of one kind family (crosses and checkers).
@@ -267,6 +280,15 @@ impl PrintedDetector {
                 if pass == 1 && rms[l] > p.max_fit_rms_px {
                     return Err(Rejection::LineFit);
                 }
+                // A checker's boundary is one edge through the centre, not
+                // two parallel ones (a stripe's sides, two stripes
+                // crossing). A cross's points are already its bar's
+                // middles, and taped bars may sit a little apart.
+                if pass == 1
+                    && design.kind == DesignKind::Checker
+                    && arms_offset(&arms[l], &arms[l + 2], fitted) > p.max_arm_offset_px {
+                    return Err(Rejection::ArmsOffset);
+                }
                 *line = fitted;
             }
             centre = intersect(lines[0], lines[1]).ok_or(Rejection::LineFit)?;
@@ -323,6 +345,35 @@ impl PrintedDetector {
             if ratio < range.0 / 1.2 || ratio > range.1 * 1.2 {
                 return Err(Rejection::Proportions);
             }
+        }
+        // A target's structure ends at its board's sides; a lattice's or
+        // paving's runs on past them. A frame's or tile's edge within reach
+        // leaves that arm untold.
+        let feature = match design.kind {
+            DesignKind::Cross => Feature::Bar { sign },
+            DesignKind::Checker => Feature::Step { sign: 1.0 },
+        };
+        let running = (0..4)
+            .filter(|&i| {
+                let l = lengths[i];
+                let from = l + 1.5 * bar[0].max(bar[1]).max(width) + 2.0;
+                let to = 1.6 * l;
+                to > from
+                    && continuation(
+                        img,
+                        feature,
+                        centre,
+                        arm_dir(&dirs, i),
+                        width,
+                        contrast,
+                        (from, to, (l / 30.0).max(0.75)),
+                        p,
+                    )
+                    .is_some_and(|share| share >= p.max_continuation)
+            })
+            .count();
+        if running >= 2 {
+            return Err(Rejection::RunsPastBoard);
         }
         let verdict = verify(img, design, &fit).ok_or(Rejection::AtTileEdge)?;
         if verdict.contrast < p.min_contrast || verdict.score < p.min_score {
@@ -381,6 +432,25 @@ fn crosses_seam(img: &GreyView, p: Pt, seams: [bool; 4]) -> bool {
         || (seams[1] && p.1 <= 0.0)
         || (seams[2] && p.0 >= w)
         || (seams[3] && p.1 >= h)
+}
+
+/// Distance between the median signed offsets of arms `a` and `b` (opposite
+/// arms) from their common fitted `line`: near zero when both follow one
+/// line through the centre, a bar width for a stripe's two sides.
+fn arms_offset(a: &Arm, b: &Arm, line: (Pt, Pt)) -> f64 {
+    let ((px, py), (dx, dy)) = line;
+    let median = |arm: &Arm| {
+        let r: Vec<f64> = arm
+            .points
+            .iter()
+            .map(|&(x, y)| (x - px) * dy - (y - py) * dx)
+            .collect();
+        (!r.is_empty()).then(|| pr::quantile(&r, 0.5))
+    };
+    match (median(a), median(b)) {
+        (Some(ma), Some(mb)) => (ma - mb).abs(),
+        _ => 0.0,
+    }
 }
 
 /// What arms `l` and `l + 2` (one line) measured, together.

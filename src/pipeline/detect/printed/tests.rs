@@ -138,3 +138,73 @@ fn a_checker_is_found_at_its_saddle_point() {
     let err = (found[0].center.0 - c.0).hypot(found[0].center.1 - c.1);
     assert!(err < 0.1, "centre off by {err}");
 }
+
+/// `f(u, v)` drawn turned by `angle` about `c` on a w x w image of `ground`
+/// grey, where `f` gives None.
+fn turned(w: usize, c: (f64, f64), angle: f64, ground: f64, f: impl Fn(f64, f64) -> Option<f64>) -> Vec<u8> {
+    let (co, si) = (angle.cos(), angle.sin());
+    render_image(w, |x, y| {
+        let (dx, dy) = (x - c.0, y - c.1);
+        f(co * dx + si * dy, -si * dx + co * dy).unwrap_or(ground)
+    })
+}
+
+#[test]
+fn a_small_panel_grid_is_not_a_cross() {
+    // Four by three dark cells 30 px wide in a light frame 6 px wide, on
+    // grey ground: a grid too small for a copy of the design one board
+    // away, whose lines still run on past each crossing's cell.
+    let (cell, line) = (30.0, 6.0);
+    let data = turned(300, (151.3, 148.6), 0.35, 120.0, |u, v| {
+        let (hw, hh) = (2.0 * cell, 1.5 * cell);
+        if u.abs() > hw + line / 2.0 || v.abs() > hh + line / 2.0 {
+            return None;
+        }
+        let near = |x: f64| {
+            let f = x.rem_euclid(cell);
+            f < line / 2.0 || f > cell - line / 2.0
+        };
+        Some(if near(u + hw) || near(v + hh) { 220.0 } else { 30.0 })
+    });
+    let found = detect_in(&data, 300, &["cross"]);
+    assert!(found.is_empty(), "{found:?}");
+}
+
+#[test]
+fn checker_paving_is_neither_a_cross_nor_a_checker_inside() {
+    // Five by five squares of 26 px: a light square's corners touching its
+    // diagonal neighbours look like a cross turned 45 degrees, and each
+    // inner corner is a saddle; but the pattern runs on past any 2x2.
+    let tile = 26.0;
+    let data = turned(300, (149.4, 150.7), 0.2, 120.0, |u, v| {
+        let half = 2.5 * tile;
+        if u.abs() > half || v.abs() > half {
+            return None;
+        }
+        let (i, j) = (((u + half) / tile) as usize, ((v + half) / tile) as usize);
+        Some(if (i + j) % 2 == 0 { 40.0 } else { 215.0 })
+    });
+    let found = detect_in(&data, 300, &["cross"]);
+    assert!(found.is_empty(), "cross: {found:?}");
+    // Paving's inner corners: only those on its rim may pass as checkers
+    // (a 2x2 fragment is a checker), never the middle one.
+    let found = detect_in(&data, 300, &["checker"]);
+    assert!(
+        found
+            .iter()
+            .all(|d| (d.center.0 - 149.4).hypot(d.center.1 - 150.7) > 30.0),
+        "checker at the paving's middle: {found:?}"
+    );
+}
+
+#[test]
+fn a_stripe_is_not_a_checker() {
+    // A light stripe 12 px wide across dark ground, and two crossing.
+    for crossing in [false, true] {
+        let data = turned(300, (150.6, 149.2), 0.6, 30.0, |u, v| {
+            (v.abs() < 6.0 || (crossing && (u - 10.0).abs() < 6.0)).then_some(220.0)
+        });
+        let found = detect_in(&data, 300, &["checker"]);
+        assert!(found.is_empty(), "crossing {crossing}: {found:?}");
+    }
+}

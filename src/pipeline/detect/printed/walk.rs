@@ -120,6 +120,60 @@ pub fn follow(
     arm
 }
 
+/// Share of the profiles past an arm's end, from `from` to `to` pixels
+/// along unit `dir`, that show the feature again in either polarity: a bar
+/// with the board on both sides at the bar's width, or a step. A target's
+/// structure ends at its board's side; a lattice's bar runs on past the
+/// next line, paving's boundary past the next square (with its sign
+/// turned). None when the probe leaves the tile.
+#[allow(clippy::too_many_arguments)]
+pub fn continuation(
+    img: &GreyView,
+    feature: Feature,
+    centre: Pt,
+    dir: Pt,
+    width: f64,
+    contrast: f64,
+    (from, to, step): (f64, f64, f64),
+    params: &Params,
+) -> Option<f64> {
+    let n = perp(dir);
+    let (half, side_from) = match feature {
+        Feature::Bar { .. } => (2.5 * width + 4.0, 0.5 * width + 1.5),
+        Feature::Step { .. } => (width, 1.5),
+    };
+    let need = params.side_share * contrast;
+    let mut samples = Vec::new();
+    let (mut seen, mut total) = (0usize, 0usize);
+    let mut t = from;
+    while t <= to {
+        pr::line(img, add(centre, dir, t), n, half, &mut samples)?;
+        let across = Across {
+            samples: &samples,
+            half,
+            side_from,
+            base: add(centre, dir, t),
+            n,
+        };
+        let shows = [1.0, -1.0].iter().any(|&sign| {
+            let mut scratch = Arm::default();
+            match feature {
+                Feature::Bar { .. } => {
+                    across.bar(sign, width, need, params, &mut scratch);
+                }
+                Feature::Step { .. } => {
+                    across.step(sign, need, &mut scratch);
+                }
+            }
+            !scratch.points.is_empty()
+        });
+        seen += shows as usize;
+        total += 1;
+        t += step;
+    }
+    (total > 0).then(|| seen as f64 / total as f64)
+}
+
 /// One profile across the feature: samples every [`pr::STEP_PX`] from
 /// `-half` to `half` along `n`, centred on `base`; the sides are measured
 /// from `side_from` outward.

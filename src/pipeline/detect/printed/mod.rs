@@ -33,7 +33,7 @@ mod tests;
 mod verify;
 mod walk;
 
-use verify::{verify, Fit};
+use verify::{verify, Fit, Verdict};
 use walk::{continuation, follow, Arm, Feature};
 
 /// Thresholds of the printed-target detector. The defaults are first
@@ -127,6 +127,9 @@ pub enum Rejection {
     /// The bars or boundaries run on past the board on two or more arms:
     /// a lattice or paving, not a target.
     RunsPastBoard,
+    /// A checker whose board's corners or sides' middles are saddles
+    /// too: a corner of paving, not a 2x2 target.
+    Paving,
 }
 
 /// Detector of the designs of one kind family (crosses and checkers).
@@ -286,7 +289,8 @@ impl PrintedDetector {
                 // middles, and taped bars may sit a little apart.
                 if pass == 1
                     && design.kind == DesignKind::Checker
-                    && arms_offset(&arms[l], &arms[l + 2], fitted) > p.max_arm_offset_px {
+                    && arms_offset(&arms[l], &arms[l + 2], fitted) > p.max_arm_offset_px
+                {
                     return Err(Rejection::ArmsOffset);
                 }
                 *line = fitted;
@@ -382,7 +386,12 @@ impl PrintedDetector {
         if verdict.salience < p.min_salience {
             return Err(Rejection::Texture);
         }
-        if repeats(img, design, &fit, p) {
+        if design.kind == DesignKind::Checker
+            && paving_around(img, &fit, p.side_share * contrast, 0.3 * contrast)
+        {
+            return Err(Rejection::Paving);
+        }
+        if repeats(img, design, &fit, &verdict, p) {
             return Err(Rejection::Repeats);
         }
         Ok(Found {
@@ -401,7 +410,13 @@ impl PrintedDetector {
 /// the ground, while paving, a panel grid or any lattice repeats it at its
 /// own pitch. The pitch is searched from [`REPEAT_PITCH`] of the board's
 /// side, since an arm of a lattice ends at the next line's near edge.
-fn repeats(img: &GreyView, design: &TargetDesign, fit: &Fit, p: &Params) -> bool {
+fn repeats(img: &GreyView, design: &TargetDesign, fit: &Fit, own: &Verdict, p: &Params) -> bool {
+    let tol = REPEAT_LEVELS * own.contrast;
+    let alike = |v: &Verdict| {
+        v.score >= p.max_repeat_score
+            && (v.levels.0 - own.levels.0).abs() <= tol
+            && (v.levels.1 - own.levels.1).abs() <= tol
+    };
     for k in 0..2 {
         let board = fit.lengths[k] + fit.lengths[k + 2];
         let step = (board / 40.0).max(0.75);
@@ -410,7 +425,7 @@ fn repeats(img: &GreyView, design: &TargetDesign, fit: &Fit, p: &Params) -> bool
             while t <= REPEAT_PITCH.1 * board {
                 let mut shifted = *fit;
                 shifted.centre = add(fit.centre, fit.dirs[k], sense * t);
-                if verify(img, design, &shifted).is_some_and(|v| v.score >= p.max_repeat_score) {
+                if verify(img, design, &shifted).is_some_and(|v| alike(&v)) {
                     return true;
                 }
                 t += step;
@@ -419,6 +434,75 @@ fn repeats(img: &GreyView, design: &TargetDesign, fit: &Fit, p: &Params) -> bool
     }
     false
 }
+
+/// Whether a saddle like the checker's own lies at any of the board's four
+/// corners or its sides' middles: paving's tiles meet there, while a 2x2
+/// checker's quadrants meet the ground (one or two quadrants and the ground
+/// around each, never two pairs alternating). A saddle counts when its
+/// light and dark pairs are the checker's own two levels (within `tol` in
+/// log grey) and apart by `need`: paving repeats its two colours, while a
+/// shadow's edge over the ground beside a side makes other levels.
+fn paving_around(img: &GreyView, fit: &Fit, need: f64, tol: f64) -> bool {
+    let Some(own) = saddle_levels(img, fit, (0.0, 0.0)) else {
+        return false;
+    };
+    let around = [
+        (1.0, 0.0),
+        (0.0, 1.0),
+        (-1.0, 0.0),
+        (0.0, -1.0),
+        (1.0, 1.0),
+        (-1.0, 1.0),
+        (-1.0, -1.0),
+        (1.0, -1.0),
+    ];
+    around.iter().any(|&at| {
+        saddle_levels(img, fit, at).is_some_and(|(light, dark)| {
+            light.0.min(light.1) - dark.0.max(dark.1) >= need
+                && [light.0, light.1].iter().all(|l| {
+                    (l - own.0 .0.max(own.0 .1)).abs() <= tol
+                        || (l - own.0 .0.min(own.0 .1)).abs() <= tol
+                })
+                && [dark.0, dark.1].iter().all(|d| {
+                    (d - own.1 .0.max(own.1 .1)).abs() <= tol
+                        || (d - own.1 .0.min(own.1 .1)).abs() <= tol
+                })
+        })
+    })
+}
+
+/// The four patches a quarter side around design point (u, v) of `fit`, in
+/// log grey, as the lighter diagonal pair and the darker one.
+type Pair = (f64, f64);
+fn saddle_levels(img: &GreyView, fit: &Fit, (u, v): (f64, f64)) -> Option<(Pair, Pair)> {
+    const PATCH: [f64; 3] = [-0.08, 0.0, 0.08];
+    let mut q = [0.0f64; 4];
+    for (k, (su, sv)) in [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)]
+        .iter()
+        .enumerate()
+    {
+        let (cu, cv) = (u + 0.25 * su, v + 0.25 * sv);
+        let mut sum = 0.0;
+        for du in PATCH {
+            for dv in PATCH {
+                let p = fit.at(cu + du, cv + dv);
+                sum += img.sample(p.0, p.1)?;
+            }
+        }
+        q[k] = harmonic::log_grey(sum / 9.0);
+    }
+    let (a, b) = ((q[0], q[2]), (q[1], q[3]));
+    Some(if a.0 + a.1 >= b.0 + b.1 {
+        (a, b)
+    } else {
+        (b, a)
+    })
+}
+
+/// A copy one board away counts when its light and dark levels are the
+/// target's own within this share of its contrast: a lattice or paving
+/// repeats its colours, while other paving beside a target has its own.
+const REPEAT_LEVELS: f64 = 0.3;
 
 /// Pitches, in board sides, at which a lattice's next copy of the design
 /// is looked for.

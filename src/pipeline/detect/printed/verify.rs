@@ -61,6 +61,8 @@ pub struct Verdict {
     /// `ground_texture`); the contrast itself when too little ground lies
     /// in the tile to tell (the texture then counts as one grey level).
     pub salience: f64,
+    /// Mean grey levels of the lighter and the darker parts.
+    pub levels: (f64, f64),
 }
 
 /// Design samples per side of the board.
@@ -156,7 +158,8 @@ pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdic
     } else {
         0.0
     };
-    let mut contrast = light.0 / light.1 as f64 - dark.0 / dark.1 as f64;
+    let (light_mean, dark_mean) = (light.0 / light.1 as f64, dark.0 / dark.1 as f64);
+    let mut contrast = light_mean - dark_mean;
     if design.kind == DesignKind::Checker {
         score = score.abs();
         contrast = contrast.abs();
@@ -166,6 +169,7 @@ pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdic
         score,
         contrast,
         salience,
+        levels: (light_mean.max(dark_mean), light_mean.min(dark_mean)),
     })
 }
 

@@ -130,6 +130,9 @@ pub enum Rejection {
     /// A checker whose board's corners or sides' middles are saddles
     /// too: a corner of paving, not a 2x2 target.
     Paving,
+    /// A cross with a crossing of its own two levels where an arm ends or
+    /// at a board corner: a node of a lattice, not a target.
+    Lattice,
 }
 
 /// Detector of the designs of one kind family (crosses and checkers).
@@ -391,6 +394,9 @@ impl PrintedDetector {
         {
             return Err(Rejection::Paving);
         }
+        if design.kind == DesignKind::Cross && lattice_around(img, &fit, &verdict, sign, p) {
+            return Err(Rejection::Lattice);
+        }
         if repeats(img, design, &fit, &verdict, p) {
             return Err(Rejection::Repeats);
         }
@@ -496,6 +502,70 @@ fn saddle_levels(img: &GreyView, fit: &Fit, (u, v): (f64, f64)) -> Option<(Pair,
         (a, b)
     } else {
         (b, a)
+    })
+}
+
+/// Whether a crossing like the cross's own lies where an arm ends (past
+/// the next line's near edge, at its middle) or at a board corner: a
+/// lattice's lines cross there, while a target's bars end at the board's
+/// side with the ground past it. A crossing counts when its bars and the
+/// patches between them are the target's own two levels within
+/// [`REPEAT_LEVELS`] of its contrast, the bars lighter (for `sign` +1) by
+/// `side_share` of it.
+fn lattice_around(img: &GreyView, fit: &Fit, own: &Verdict, sign: f64, p: &Params) -> bool {
+    let (bar_level, board_level) = if sign > 0.0 {
+        own.levels
+    } else {
+        (own.levels.1, own.levels.0)
+    };
+    let tol = REPEAT_LEVELS * own.contrast;
+    let need = p.side_share * own.contrast;
+    // The next lines' middles, in design units past each arm's end.
+    let past = |k: usize| 1.0 + 0.5 * fit.bar[1 - k % 2] / fit.lengths[k].max(1.0);
+    let (pu, nu, pv, nv) = (past(0), -past(2), past(1), -past(3));
+    let nodes = [
+        (pu, 0.0),
+        (0.0, pv),
+        (nu, 0.0),
+        (0.0, nv),
+        (pu, pv),
+        (nu, pv),
+        (nu, nv),
+        (pu, nv),
+    ];
+    let mean = |pts: &[(f64, f64)]| -> Option<f64> {
+        let mut sum = 0.0;
+        for &(u, v) in pts {
+            let q = fit.at(u, v);
+            sum += img.sample(q.0, q.1)?;
+        }
+        Some(sum / pts.len() as f64)
+    };
+    nodes.iter().any(|&(u, v)| {
+        let crossing = || -> Option<bool> {
+            let (a, b) = (0.3, 0.2);
+            let bars = [
+                mean(&[(u + b, v), (u + a, v)])?,
+                mean(&[(u - b, v), (u - a, v)])?,
+                mean(&[(u, v + b), (u, v + a)])?,
+                mean(&[(u, v - b), (u, v - a)])?,
+            ];
+            let quads = [
+                mean(&[(u + a, v + a)])?,
+                mean(&[(u - a, v + a)])?,
+                mean(&[(u - a, v - a)])?,
+                mean(&[(u + a, v - a)])?,
+            ];
+            let signed = |x: f64| sign * x;
+            let bar_min = bars.iter().map(|&x| signed(x)).fold(f64::MAX, f64::min);
+            let quad_max = quads.iter().map(|&x| signed(x)).fold(f64::MIN, f64::max);
+            Some(
+                bar_min - quad_max >= need
+                    && bars.iter().all(|x| (x - bar_level).abs() <= tol)
+                    && quads.iter().all(|x| (x - board_level).abs() <= tol),
+            )
+        };
+        crossing() == Some(true)
     })
 }
 

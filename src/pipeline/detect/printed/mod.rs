@@ -66,6 +66,9 @@ pub struct Params {
     /// Largest distance, in pixels, between two opposite arms' median
     /// offsets from their common line (see `arms_offset`).
     pub max_arm_offset_px: f64,
+    /// Largest spread of a bar's measured widths (10th to 90th
+    /// percentile) over their median.
+    pub max_width_spread: f64,
     /// Largest ratio of two opposite arms' lengths (perspective, a side
     /// partly hidden).
     pub max_arm_ratio: f64,
@@ -91,6 +94,7 @@ impl Default for Params {
             min_coverage: 0.35,
             max_fit_rms_px: 1.5,
             max_arm_offset_px: 1.0,
+            max_width_spread: 0.4,
             max_arm_ratio: 1.6,
             size_slack: 1.1,
             max_repeat_score: 0.6,
@@ -112,6 +116,9 @@ pub enum Rejection {
     RunsOn,
     /// A line fit failed or its points scatter.
     LineFit,
+    /// A bar's width changes along it (paving's squares meeting at their
+    /// corners), where a printed bar's does not.
+    UnevenBar,
     /// Opposite arms lie on two parallel lines, not one.
     ArmsOffset,
     /// Opposite arms differ more than perspective explains.
@@ -322,6 +329,21 @@ impl PrintedDetector {
             let (a, b) = (lengths[i], lengths[i + 2]);
             if a.max(b) > p.max_arm_ratio * a.min(b) {
                 return Err(Rejection::UnevenArms);
+            }
+        }
+        // A printed bar has one width along its length (perspective
+        // changes it by a few percent); a chain of paving's squares
+        // touching at their corners, taken for a bar, widens and narrows.
+        if design.kind == DesignKind::Cross {
+            for l in 0..2 {
+                let w = on_line(&arms, l, |a| &a.widths);
+                if w.len() >= 5 {
+                    let spread =
+                        (pr::quantile(&w, 0.9) - pr::quantile(&w, 0.1)) / pr::quantile(&w, 0.5);
+                    if spread > p.max_width_spread {
+                        return Err(Rejection::UnevenBar);
+                    }
+                }
             }
         }
         let bar = match design.kind {

@@ -173,15 +173,16 @@ impl TargetDesign {
 
 /// Built-in designs, named by `--target-design NAME`. A plain cross is the
 /// marked cross with nothing marked, so one preset serves both; bars from
-/// 1/16 to 1/4 of the side cover the field designs in use (about 1/10 on
-/// the common 60 cm boards).
+/// 7% to 25% of the side cover the field designs in use (about 1/8 on the
+/// real photos of the README, 1/6 on 60 cm boards with 10 cm bars). Road
+/// markings' crosses, with arms 7 to 20 bar widths long, are thinner.
 pub fn presets() -> Vec<TargetDesign> {
     vec![
         TargetDesign {
             name: "cross".into(),
             kind: DesignKind::Cross,
             polarity: Polarity::LightOnDark,
-            bar_width: Some(Range(0.06, 0.25)),
+            bar_width: Some(Range(0.07, 0.25)),
             free: FreeArea::Quadrants,
             border_band: default_border_band(),
             size_m: None,

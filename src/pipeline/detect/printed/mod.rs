@@ -375,9 +375,10 @@ impl PrintedDetector {
             return Err(Rejection::Proportions);
         }
         if let Some(range) = design.bar_width {
-            // Blur widens the narrowest bars' profiles a little: 20% slack.
+            // Blur widens the narrowest bars' profiles a little: 20% slack
+            // above, 5% below for the measurement's own error.
             let ratio = 0.5 * (bar[0] + bar[1]) / size;
-            if ratio < range.0 / 1.2 || ratio > range.1 * 1.2 {
+            if ratio < range.0 / 1.05 || ratio > range.1 * 1.2 {
                 return Err(Rejection::Proportions);
             }
         }

@@ -42,14 +42,26 @@ use walk::{continuation, follow, Arm, Feature};
 /// `max_arm_offset_px`, `max_width_spread` and `max_fit_rms_px` were
 /// chosen on generated frames (targets against look-alikes: true targets
 /// fit to 0.32 px, bars spread 0.17 at most; stripes' and paving's fits
-/// 0.8 px and more, 0.58). `min_salience`, `max_fit_rms_share` (cloth
-/// targets' bent bars, 0.57 px at 168 px there) and the 32 px floor were
-/// set while reading the real photos, so they are the first to re-check
-/// on other photos.
+/// 0.8 px and more, 0.58). `min_salience` and `min_light_ratio` sit below
+/// the weakest generated targets (12.1 and 1.96 on seeds 300, 3100, 3200).
+/// `max_fit_rms_share` (cloth targets' bent bars, 0.57 px at 168 px
+/// there), `min_checker_px` and the 32 px floor were set while reading the
+/// real photos (foliage taken for checkers measures 29 to 45 px), so they
+/// are the first to re-check on other photos.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Params {
     /// Smallest normalised correlation of the drawn design with the image.
     pub min_score: f64,
+    /// Least ratio of the light parts' mean grey to the dark parts': a
+    /// print's inks differ in reflectance by 5 to 15 times, which the
+    /// camera's gamma and haze bring down to 2 and more (the generator's
+    /// weakest prints: 1.96), while blobs of foliage and sand ripples
+    /// differ by 1.2 to 1.8.
+    pub min_light_ratio: f64,
+    /// Smallest checker accepted, as measured, whatever the job's least
+    /// size: its quadrants, half the side, are told from blobs of foliage
+    /// only from about 20 px (a cross's long bars are told from 32 px).
+    pub min_checker_px: f64,
     /// Fewest grey levels between the design's light and dark parts.
     pub min_contrast: f64,
     /// Least ratio of the target's contrast to the ground's texture around
@@ -92,8 +104,10 @@ impl Default for Params {
     fn default() -> Self {
         Params {
             min_score: 0.75,
+            min_light_ratio: 1.8,
+            min_checker_px: 40.0,
             min_contrast: 15.0,
-            min_salience: 6.0,
+            min_salience: 10.0,
             side_share: 0.4,
             width_band: (0.6, 1.5),
             min_coverage: 0.35,
@@ -371,7 +385,10 @@ impl PrintedDetector {
         };
         let size = fit.size();
         let slack = p.size_slack;
-        if size < self.sizes.min_px / slack || size > self.sizes.max_px * slack {
+        if size < self.sizes.min_px / slack
+            || size > self.sizes.max_px * slack
+            || (design.kind == DesignKind::Checker && size < p.min_checker_px)
+        {
             return Err(Rejection::Proportions);
         }
         if let Some(range) = design.bar_width {
@@ -412,7 +429,10 @@ impl PrintedDetector {
             return Err(Rejection::RunsPastBoard);
         }
         let verdict = verify(img, design, &fit).ok_or(Rejection::AtTileEdge)?;
-        if verdict.contrast < p.min_contrast || verdict.score < p.min_score {
+        if verdict.contrast < p.min_contrast
+            || verdict.score < p.min_score
+            || verdict.levels.0 + 1.0 < p.min_light_ratio * (verdict.levels.1 + 1.0)
+        {
             return Err(Rejection::NoMatch);
         }
         if verdict.salience < p.min_salience {
@@ -429,6 +449,18 @@ impl PrintedDetector {
         if repeats(img, design, &fit, &verdict, p) {
             return Err(Rejection::Repeats);
         }
+        tracing::debug!(
+            x = centre.0,
+            y = centre.1,
+            size,
+            design = %design.name,
+            score = verdict.score,
+            contrast = verdict.contrast,
+            salience = verdict.salience,
+            light = verdict.levels.0,
+            dark = verdict.levels.1,
+            "printed candidate accepted"
+        );
         Ok(Found {
             centre,
             corners: fit.corners(),

@@ -89,7 +89,13 @@ fn main() {
         set.name, set.spec.frames
     );
     println!("|---|---|---|");
-    for mode in ["apriltag", "aruco", "crosshair", "circle"] {
+    for mode in [
+        "apriltag",
+        "aruco",
+        "crosshair",
+        "circle",
+        "crosshair,circle",
+    ] {
         let out = dir.with_extension(format!("{mode}.csv"));
         let (seconds, rss_kib) = run_detect(&dir, &out, &["--threads", "2", "--marker-type", mode]);
         let mp = (set.spec.width * set.spec.height * set.spec.frames) as f64 / 1e6;

@@ -1,11 +1,12 @@
 //! Real aerial photos: `../shared/real/copr-dev`, twenty 4272x2848 photos of
 //! printed crosses on sand with every sighting listed (`targets.csv`, good to
-//! about 1 px). Run with the default options and the built-in `cross`
-//! design (`--target-design cross`), nothing chosen for this set.
+//! about 1 px). Run as a new user would, `--marker-type crosshair` and the
+//! default options (every built-in crosshair design), nothing chosen for
+//! this set.
 
 use std::path::PathBuf;
 
-use gcp_tagger::pipeline::detect::{MarkerType, TargetDesign};
+use gcp_tagger::pipeline::detect::MarkerType;
 
 use crate::support::*;
 
@@ -38,7 +39,7 @@ fn sightings(dir: &std::path::Path) -> Vec<(String, f64, f64)> {
 /// At least 32 of the 33 sightings found within 3 px, at most one false
 /// detection over the twenty photos.
 #[test]
-fn printed_crosses_on_real_photos_are_found_from_the_cross_design() {
+fn printed_crosses_on_real_photos_are_found_with_the_default_options() {
     let dir = real_set();
     let truth = sightings(&dir);
     assert_eq!(truth.len(), 33);
@@ -48,8 +49,7 @@ fn printed_crosses_on_real_photos_are_found_from_the_cross_design() {
         .collect();
     paths.sort();
     assert_eq!(paths.len(), 20);
-    let mut opts = options("EPSG:32611", &[MarkerType::Crosshair]);
-    opts.frame.detector.designs = vec![TargetDesign::preset("cross").unwrap()];
+    let opts = options("EPSG:32611", &[MarkerType::Crosshair]);
     let outcomes = run(&paths, &opts);
     let mut found: Vec<(String, (f64, f64))> = Vec::new();
     for outcome in outcomes {

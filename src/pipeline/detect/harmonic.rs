@@ -61,7 +61,6 @@ pub struct Candidate {
     /// (to one pixel on the full-resolution level, searched every 2 px).
     pub scale: f64,
     pub symmetry: Symmetry,
-    pub score: f64,
 }
 
 /// Cosines and sines of a ring's sample angles (1st, 2nd and 4th
@@ -114,6 +113,7 @@ impl RingBasis {
     }
 
     /// Amplitudes of the 2nd and 4th harmonics of ring `s`.
+    #[cfg(test)]
     pub fn amplitudes(&self, s: &[f64]) -> (f64, f64) {
         let (c2, s2) = Self::harmonic(&self.h2, s);
         let (c4, s4) = Self::harmonic(&self.h4, s);
@@ -126,6 +126,7 @@ impl RingBasis {
 
     /// Amplitudes of the 2nd and 4th harmonics of ring `s` and its
     /// asymmetry beyond a straight step.
+    #[cfg(test)]
     pub fn response(&self, s: &[f64]) -> (f64, f64, f64) {
         let (a2, a4) = self.amplitudes(s);
         (a2, a4, self.asymmetry(s))
@@ -395,7 +396,6 @@ fn level_candidates(
                     size: RING_PX / RING_TO_SIZE * scale,
                     scale,
                     symmetry,
-                    score: v as f64,
                 });
             }
         }

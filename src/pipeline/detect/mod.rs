@@ -7,7 +7,6 @@
 mod arcs;
 mod blobs;
 mod circle;
-mod crosshair;
 pub mod design;
 mod fiducial;
 mod found;
@@ -26,7 +25,6 @@ use std::str::FromStr;
 use opencv::core::Mat;
 
 pub use circle::CircleDetector;
-pub use crosshair::CrosshairDetector;
 pub use design::TargetDesign;
 pub use fiducial::{marker_bits, AprilTagFamily, ArucoDictionary, FiducialDetector};
 pub use printed::PrintedDetector;
@@ -200,8 +198,9 @@ pub struct DetectorConfig {
     /// Expected ground sample distance in cm per pixel; `None` takes it from
     /// the frame's georeference when that is in metres.
     pub gsd_cm: Option<f64>,
-    /// Printed designs to look for, found from their description; empty
-    /// means each printed mode's built-in detector.
+    /// Printed designs to look for, found from their description; none
+    /// of a mode's kind means that mode's presets (`crosshair`: the `cross`
+    /// and `checker` presets).
     pub designs: Vec<TargetDesign>,
 }
 
@@ -293,20 +292,21 @@ pub fn build_detectors(
                 config,
             )?)),
             MarkerType::Crosshair => {
-                let own: Vec<TargetDesign> = config
+                // The designs given, or else every built-in design of the
+                // mode (a cross, marked or not, and a 2x2 checker).
+                let mut own: Vec<TargetDesign> = config
                     .designs
                     .iter()
                     .filter(|d| d.marker_type() == MarkerType::Crosshair)
                     .cloned()
                     .collect();
-                // A design given: found from its description. None: the
-                // crosshair detector's built-in rules (the design detector
-                // does not yet meet their figures on generated look-alikes).
                 if own.is_empty() {
-                    out.push(Box::new(CrosshairDetector::new(sizes)))
-                } else {
-                    out.push(Box::new(PrintedDetector::new(*mode, own, sizes)))
+                    own = design::presets()
+                        .into_iter()
+                        .filter(|d| d.marker_type() == MarkerType::Crosshair)
+                        .collect();
                 }
+                out.push(Box::new(PrintedDetector::new(*mode, own, sizes)))
             }
             MarkerType::Circle => out.push(Box::new(CircleDetector::new(sizes))),
         }

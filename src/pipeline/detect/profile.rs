@@ -59,13 +59,6 @@ pub fn crossing(p: &[f64], level: f64, rising: bool, near: f64) -> Option<f64> {
     best
 }
 
-/// The profile's level around fractional index `x`: the mean over +-0.5 px
-/// (against noise), clamped to the profile.
-pub fn level_near(p: &[f64], x: f64) -> f64 {
-    let i = x.round().max(0.0) as usize;
-    mean(p, i.saturating_sub(2), i + 3)
-}
-
 /// Mean of `p[range]` (clamped to the profile).
 pub fn mean(p: &[f64], from: usize, to: usize) -> f64 {
     let to = to.min(p.len());

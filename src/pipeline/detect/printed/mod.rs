@@ -147,6 +147,9 @@ pub enum Rejection {
     Proportions,
     /// The drawn design does not match the image.
     NoMatch,
+    /// The light parts are too little brighter than the dark ones for
+    /// two inks (see `Params::min_light_ratio`).
+    NotInk,
     /// The pattern is no stronger than the ground's texture around it.
     Texture,
     /// The design repeats one board away: a lattice, not a target.
@@ -429,11 +432,11 @@ impl PrintedDetector {
             return Err(Rejection::RunsPastBoard);
         }
         let verdict = verify(img, design, &fit).ok_or(Rejection::AtTileEdge)?;
-        if verdict.contrast < p.min_contrast
-            || verdict.score < p.min_score
-            || verdict.levels.0 + 1.0 < p.min_light_ratio * (verdict.levels.1 + 1.0)
-        {
+        if verdict.contrast < p.min_contrast || verdict.score < p.min_score {
             return Err(Rejection::NoMatch);
+        }
+        if verdict.levels.0 + 1.0 < p.min_light_ratio * (verdict.levels.1 + 1.0) {
+            return Err(Rejection::NotInk);
         }
         if verdict.salience < p.min_salience {
             return Err(Rejection::Texture);

@@ -132,7 +132,7 @@ pub struct DetectArgs {
     /// Frames (JPEG, TIFF/GeoTIFF, PNG) or folders of them.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
-    /// Target types to look for, comma separated: apriltag, aruco, crosshair (white cross on black, 2x2 checker), circle (bullseye, disc on a board).
+    /// Target types to look for, comma separated: apriltag, aruco, crosshair (white cross on black, 2x2 checker), circle (bullseyes of any ring ratio, discs on a board).
     #[arg(
         long,
         value_delimiter = ',',
@@ -191,7 +191,7 @@ pub struct DetectArgs {
     /// Expected ground sample distance in cm per pixel (default: from each frame's georeference, when it has one).
     #[arg(long, env = "GCP_TAGGER_GSD_CM")]
     pub gsd_cm: Option<f64>,
-    /// A printed target's design: a preset name (cross, checker) or a JSON file (kind, bar_width, free, size_m...); its targets are found from the description. See the README's "Printed targets".
+    /// A printed target's design: a preset name (cross, checker, bullseye, bullseye-5, disc-black, disc-white) or a JSON file (kind, bar_width, ring_radii, board, free, size_m...); its targets are found from the description. See the README's "Printed targets".
     #[arg(long, env = "GCP_TAGGER_TARGET_DESIGN")]
     pub target_design: Option<String>,
     /// No progress bar.

@@ -46,7 +46,7 @@ pub struct UploadQuery {
     target_size_m: Option<f64>,
     /// Expected ground sample distance in cm per pixel (default: from the frame's georeference).
     gsd_cm: Option<f64>,
-    /// A printed target's design: a preset name (`cross`, `checker`) or the design as JSON text.
+    /// A printed target's design: a preset name (`cross`, `checker`, `bullseye`, `bullseye-5`, `disc-black`, `disc-white`) or the design as JSON text.
     target_design: Option<String>,
 }
 

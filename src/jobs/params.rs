@@ -163,7 +163,10 @@ impl JobParams {
             Some(name) => Some(TargetDesign::preset(name).ok_or_else(|| {
                 invalid(
                     "target_design",
-                    format!("{name:?} is neither a preset (cross, checker) nor a JSON design"),
+                    format!(
+                        "{name:?} is neither a preset ({}) nor a JSON design",
+                        crate::pipeline::detect::design::preset_names()
+                    ),
                 )
             })?),
         };

@@ -196,7 +196,7 @@ impl Grid {
 }
 
 /// A frame of `count` printed targets of `mode` (crosshair: crosses and
-/// checkers; circle: bullseyes and discs) with sizes in `sizes`, on a grid
+/// checkers; circle: bullseyes of several ring ratios and discs) with sizes in `sizes`, on a grid
 /// with jitter, under the conditions aerial frames show: any rotation, mild
 /// perspective, print contrast down to 40%, a shadow edge across a quarter
 /// of the targets, defocus blur 0.6-1.4 px, motion blur up to 3 px on odd
@@ -214,7 +214,15 @@ pub fn printed_scene(
     let printed = (0..count)
         .map(|i| {
             let design = match (mode, i % 2) {
-                (MarkerType::Circle, 0) => PrintedDesign::Bullseye,
+                (MarkerType::Circle, 0) => {
+                    // Ring ratios of the designs in use: 1:2:3, a wide
+                    // centre disc, a thin outer ring, and between.
+                    let inner = rng.range(0.25, 0.45);
+                    PrintedDesign::Bullseye {
+                        inner,
+                        middle: rng.range(inner + 0.2, (inner + 0.4).min(0.8)),
+                    }
+                }
                 (MarkerType::Circle, _) => PrintedDesign::Disc {
                     white_on_black: rng.uniform() < 0.5,
                 },

@@ -19,9 +19,10 @@ pub enum PrintedDesign {
     Cross { bar: f64, marking: bool },
     /// 2x2 checker: two black and two white quadrants.
     Checker,
-    /// Black disc, white ring and black ring with edges at 1/3, 2/3 and 1 of
-    /// the outer radius, on a white square board 1.25x the outer diameter.
-    Bullseye,
+    /// Black disc, white ring and black ring with edges at `inner`,
+    /// `middle` and 1 of the outer radius (1/3 and 2/3 for the classic
+    /// 1:2:3), on a white square board 1.25x the outer diameter.
+    Bullseye { inner: f64, middle: f64 },
     /// A disc on a square board of twice its diameter, in the other colour.
     Disc { white_on_black: bool },
 }
@@ -30,7 +31,7 @@ impl PrintedDesign {
     pub fn marker_type(self) -> MarkerType {
         match self {
             PrintedDesign::Cross { .. } | PrintedDesign::Checker => MarkerType::Crosshair,
-            PrintedDesign::Bullseye | PrintedDesign::Disc { .. } => MarkerType::Circle,
+            PrintedDesign::Bullseye { .. } | PrintedDesign::Disc { .. } => MarkerType::Circle,
         }
     }
 }
@@ -68,7 +69,7 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
     // Extent of the paper around the unit square, in target units.
     let reach = match spec.design {
         PrintedDesign::Cross { .. } | PrintedDesign::Checker => 0.5,
-        PrintedDesign::Bullseye => 0.625,
+        PrintedDesign::Bullseye { .. } => 0.625,
         PrintedDesign::Disc { .. } => 1.0,
     };
     let outline = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
@@ -87,7 +88,9 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
                 x.abs() < bar / 2.0 || y.abs() < bar / 2.0 || in_mark
             }
             PrintedDesign::Checker => x * y < 0.0,
-            PrintedDesign::Bullseye => !(r < 1.0 / 6.0 || (1.0 / 3.0..0.5).contains(&r)),
+            PrintedDesign::Bullseye { inner, middle } => {
+                !(r < inner / 2.0 || (middle / 2.0..0.5).contains(&r))
+            }
             PrintedDesign::Disc { white_on_black } => (r < 0.5) == white_on_black,
         };
         Some(if is_white { white } else { black })

@@ -273,6 +273,25 @@ impl Default for DetectorConfig {
     }
 }
 
+/// The designs a printed-target mode looks for: those given of its kind,
+/// or else every built-in design of the mode (`crosshair`: a cross, marked
+/// or not, and a 2x2 checker; `circle`: bullseyes and discs).
+fn designs_of(config: &DetectorConfig, mode: MarkerType) -> Vec<TargetDesign> {
+    let own: Vec<TargetDesign> = config
+        .designs
+        .iter()
+        .filter(|d| d.marker_type() == mode)
+        .cloned()
+        .collect();
+    if !own.is_empty() {
+        return own;
+    }
+    design::presets()
+        .into_iter()
+        .filter(|d| d.marker_type() == mode)
+        .collect()
+}
+
 /// Builds one detector per requested mode, on the calling thread.
 pub fn build_detectors(
     config: &DetectorConfig,
@@ -291,24 +310,15 @@ pub fn build_detectors(
                 config.aruco_dictionary.opencv_name(),
                 config,
             )?)),
-            MarkerType::Crosshair => {
-                // The designs given, or else every built-in design of the
-                // mode (a cross, marked or not, and a 2x2 checker).
-                let mut own: Vec<TargetDesign> = config
-                    .designs
-                    .iter()
-                    .filter(|d| d.marker_type() == MarkerType::Crosshair)
-                    .cloned()
-                    .collect();
-                if own.is_empty() {
-                    own = design::presets()
-                        .into_iter()
-                        .filter(|d| d.marker_type() == MarkerType::Crosshair)
-                        .collect();
-                }
-                out.push(Box::new(PrintedDetector::new(*mode, own, sizes)))
-            }
-            MarkerType::Circle => out.push(Box::new(CircleDetector::new(sizes))),
+            MarkerType::Crosshair => out.push(Box::new(PrintedDetector::new(
+                *mode,
+                designs_of(config, *mode),
+                sizes,
+            ))),
+            MarkerType::Circle => out.push(Box::new(CircleDetector::new(
+                sizes,
+                &designs_of(config, *mode),
+            ))),
         }
     }
     Ok(out)

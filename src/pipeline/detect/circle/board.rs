@@ -17,6 +17,7 @@ pub(super) fn board_sides(
     img: &GreyView,
     e: &Ellipse,
     polarity: f64,
+    board_to_disc: (f64, f64),
 ) -> Result<[Option<[f64; 3]>; 4], &'static str> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
@@ -89,7 +90,7 @@ pub(super) fn board_sides(
     if board_aspect(e, &square).is_some_and(|a| a.max(1.0 / a) > MAX_BOARD_ASPECT) {
         return Err("board not square");
     }
-    if !(BOARD_TO_DISC.0..=BOARD_TO_DISC.1).contains(&ratio) {
+    if !(board_to_disc.0..=board_to_disc.1).contains(&ratio) {
         return Err("board not square");
     }
     // A side hidden by something lying on or against the board (or ground

@@ -1,14 +1,16 @@
-//! Printed circular targets: a bullseye (black disc, white ring, black ring
-//! with edges at 1/3, 2/3 and 1 of the outer radius) and a disc on a square
-//! board of the other colour.
+//! Printed circular targets, found from their [`TargetDesign`]s: bullseyes
+//! (a centre disc and rings of alternating colour, their edges at the
+//! design's ring radii) and a disc on a square board of the other colour.
 //!
 //! 1. Candidates: every dark region or hole from [`blobs`] whose contour is
-//!    an ellipse (OpenCV `fitEllipse`), taken as the innermost edge.
-//! 2. Rays from the candidate's centre, in the ellipse's own frame, look for
-//!    edges at 1x, 2x and 3x the candidate's radius (bullseye: alternating
-//!    polarity, so the ring ratios are checked), or else for a uniform board
-//!    of the other colour that ends in a square of 1.4-3x the disc's diameter
-//!    ([`rings`], [`board`]).
+//!    an ellipse (OpenCV `fitEllipse`), taken as the innermost edge and
+//!    refined on rays.
+//! 2. Which design: the median radial profile around it, in the ellipse's
+//!    own frame, gives the edges' radii and polarities; a ring design
+//!    matches when they alternate as it says and their ratios lie within
+//!    its ranges ([`rings`]). Otherwise a disc design is checked: a uniform
+//!    board of the other colour that ends in a square of the design's
+//!    proportions ([`board`]).
 //! 3. Subpixel: the midpoint crossing on every ray gives edge points; OpenCV's
 //!    direct least-squares ellipse fit (Fitzgibbon) runs on them, twice
 //!    ([`rings`]).
@@ -25,6 +27,7 @@ use opencv::core::{Mat, Point2f, RotatedRect, Vector};
 use opencv::imgproc;
 use opencv::prelude::*;
 
+use super::design::{DesignKind, Polarity, TargetDesign};
 use super::fiducial::grey_view;
 use super::found::{best_per_target, to_detection, Found};
 use super::geometry::{self, Pt};
@@ -42,7 +45,8 @@ mod tests;
 
 use board::board_sides;
 use centre::{concentric_centre, perspective_centre};
-use rings::{bullseye_on_board, fit, fit_robust, is_bullseye, rays, rms};
+use rings::{bullseye_on_board, fit, fit_robust, is_bullseye, match_layout, radial_edges};
+use rings::{rays, rms, RingLayout};
 
 /// Fewest grey levels between a target's dark and light parts.
 const MIN_CONTRAST: f64 = 15.0;
@@ -51,8 +55,25 @@ const MIN_CONTRAST: f64 = 15.0;
 /// two bullseyes in partial shadow on seeds 900-903; the ring ratios,
 /// alternating polarity and fit RMS still reject look-alikes.
 const MIN_COVERAGE: f64 = 0.55;
-/// Board side over disc diameter accepted for a disc target (designs: 2).
-const BOARD_TO_DISC: (f64, f64) = (1.4, 3.0);
+/// Board side over disc diameter searched for a disc target: the widest
+/// a design may give (see `TargetDesign::validate`).
+const BOARD_TO_DISC: (f64, f64) = (1.2, 3.0);
+/// Least ratio of the light side's grey to the dark side's across the
+/// innermost edge: a print's inks differ in reflectance by 5 to 15 times,
+/// which gamma and haze bring down to 2 and more (as for crosses, see
+/// `printed::Params::min_light_ratio`); blobs of foliage differ by less.
+const MIN_LIGHT_RATIO: f64 = 1.8;
+/// Least share of a ring's edge points its robust ellipse fit keeps.
+const MIN_RING_INLIERS: f64 = 0.8;
+/// Largest difference of a ring's axis ratio from the outer ring's, plus
+/// half a pixel over its radius: concentric circles in one plane project
+/// to nearly the same shape (mild perspective); the edges a lattice shows
+/// around one of its squares differed by 0.2 and more (clutter seed 700).
+const MAX_ASPECT_GAP: f64 = 0.05;
+/// Largest distance of a ring's ellipse centre from the outer one's, as a
+/// share of the outer radius (plus half a pixel): perspective moves them
+/// apart by a few hundredths.
+const MAX_RING_OFFSET: f64 = 0.08;
 /// Largest RMS distance of edge points from their ellipse.
 const MAX_FIT_RMS_PX: f64 = 0.45;
 /// Unless all four sides hold, the share of all rays whose end must lie on
@@ -111,13 +132,16 @@ const MIN_BOARD_SHARE: f64 = 0.5;
 /// line (a clean side: 0.3-0.6 px).
 const MAX_SIDE_RMS_PX: f64 = 0.8;
 /// Radius, in candidate radii, searched for a shadow edge across a failed
-/// candidate: a disc's board (corners at 2.8) and a bullseye's rings (3).
+/// candidate: a disc's board (corners at 2.8) and a 1:2:3 bullseye's rings
+/// (3). Searching farther for bullseyes with smaller centre discs (5
+/// radii for 1:2.5:5) found other edges than the shadow's: 3 discs of
+/// 180 lost on seeds 400, 401 and 900, no bullseye gained.
 const SHADOW_SEARCH: f64 = 3.5;
 /// Rejections that a second look with a shadow lifted is not tried for.
 /// Most rejections on a cluttered frame (1172 of 1430 on clutter seeds
 /// 700-701) are dark blobs without a uniform ring of board around them; on 12 frames of printed circles
 /// every target a second look found had first failed on its board's square.
-const NOT_SHADOW: [&str; 3] = ["board not uniform", "no edges", "inner fit"];
+const NOT_SHADOW: [&str; 4] = ["board not uniform", "no edges", "inner fit", "no rings"];
 /// Half side, in radii (the candidate's, then the found target's if
 /// larger), of the copy with a shadow lifted: the rays walk to where a
 /// board ends, up to 4.5 radii out.
@@ -218,93 +242,231 @@ impl Ellipse {
 /// Detector of bullseyes and boarded discs within a size range.
 pub struct CircleDetector {
     sizes: SizeRange,
+    /// Ring designs, most edges first (a five-edge bullseye's inner three
+    /// edges would pass for a three-edge one).
+    rings: Vec<RingLayout>,
+    /// Disc designs: dark discs, light discs, and the boards' proportions
+    /// accepted (side over the disc's diameter).
+    dark_discs: bool,
+    light_discs: bool,
+    board: (f64, f64),
     mask: Mat,
 }
 
 /// What one pass of rays found.
 struct RayPass {
-    /// Edge points at s = 1, 2, 3 of the ellipse.
-    edges: [Vec<Pt>; 3],
+    /// Edge points per edge searched.
+    edges: Vec<Vec<Pt>>,
     /// Sum of edge polarities (+1 light outside) per edge.
-    polarity: [f64; 3],
+    polarity: Vec<f64>,
     /// Median contrast of the innermost edge.
     contrast: f64,
+    /// Median ratio of the light side's grey to the dark side's across the
+    /// innermost edge.
+    light_ratio: f64,
     rays: usize,
 }
 
 impl CircleDetector {
-    pub fn new(sizes: SizeRange) -> Self {
+    /// A detector of `designs` (rings and discs; others are ignored).
+    pub fn new(sizes: SizeRange, designs: &[TargetDesign]) -> Self {
+        let mut rings: Vec<RingLayout> =
+            designs.iter().filter_map(RingLayout::from_design).collect();
+        rings.sort_by_key(|l| std::cmp::Reverse(l.radii.len()));
+        let discs: Vec<&TargetDesign> = designs
+            .iter()
+            .filter(|d| d.kind == DesignKind::Disc)
+            .collect();
+        let board = discs
+            .iter()
+            .map(|d| d.board.unwrap_or(super::design::DEFAULT_DISC_BOARD))
+            .fold((f64::INFINITY, 0.0f64), |(lo, hi), r| {
+                (lo.min(r.0), hi.max(r.1))
+            });
         CircleDetector {
             sizes,
+            rings,
+            dark_discs: discs.iter().any(|d| d.polarity == Polarity::DarkOnLight),
+            light_discs: discs.iter().any(|d| d.polarity == Polarity::LightOnDark),
+            board,
             mask: Mat::default(),
         }
     }
 
+    /// Smallest radius, over the least size searched, of a candidate: a
+    /// bullseye's centre disc or a disc.
+    fn least_candidate(&self) -> f64 {
+        let disc = if self.dark_discs || self.light_discs {
+            1.0
+        } else {
+            f64::INFINITY
+        };
+        self.rings.iter().map(|l| l.radii[0].0).fold(disc, f64::min)
+    }
+
     fn analyse(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
+        // The candidate's own edge: the threshold's contour can miss a
+        // small centre disc's edge by a pixel or two.
         let mut e = start;
-        let mut pass = rays(img, &e).ok_or("no edges")?;
-        let mut bullseye = is_bullseye(&pass);
-        let mut outer = None;
         for _ in 0..2 {
-            let inner = fit(&pass.edges[0]).ok_or("inner fit")?;
-            if bullseye {
-                outer = Some(fit(&pass.edges[2]).ok_or("outer fit")?);
-            }
-            e = inner;
-            pass = rays(img, &e).ok_or("no edges")?;
-            // The threshold's contour can miss a small centre disc's edge by
-            // a pixel or two, which puts the rings outside the rays' window
-            // (0.3 of the radius); decide again on the refined ellipse.
-            bullseye |= is_bullseye(&pass);
+            let pass = rays(img, &e, &[1.0], 1.0).ok_or("no edges")?;
+            e = fit(&pass.edges[0]).ok_or("inner fit")?;
         }
+        let measured = if self.rings.is_empty() {
+            Vec::new()
+        } else {
+            radial_edges(img, &e, 1.2 * self.rings[0].reach().max(1.0))
+        };
+        let matched = self
+            .rings
+            .iter()
+            .find_map(|l| match_layout(l, &measured).map(|pos| (l, pos)));
+        let discs = self.dark_discs || self.light_discs;
+        match matched {
+            // A disc's board and the ground past it can show edges like a
+            // bullseye's: a disc is still tried when the rings fail.
+            Some((layout, pos)) => self.bullseye(img, start, e, layout, &pos).or_else(|why| {
+                if discs {
+                    self.disc(img, start, e)
+                } else {
+                    Err(why)
+                }
+            }),
+            None if discs => self.disc(img, start, e),
+            None => Err("no rings"),
+        }
+    }
+
+    fn bullseye(
+        &self,
+        img: &GreyView,
+        start: Ellipse,
+        e: Ellipse,
+        layout: &RingLayout,
+        pos: &[f64],
+    ) -> Result<Found, &'static str> {
+        let last = pos.len() - 1;
+        let gap = pos[last] - if last == 0 { 0.0 } else { pos[last - 1] };
+        let pass = rays(img, &e, pos, gap.min(0.55 * pos[last])).ok_or("no edges")?;
+        if !is_bullseye(&pass, layout) {
+            return Err("rings not seen");
+        }
+        let coverage = self.coverage(&pass, pass.edges.len())?;
+        let (inner, inliers) = fit_robust(&pass.edges[0]).ok_or("inner fit")?;
+        let rms = rms(&inner, &inliers);
+        let outer = fit_robust(&pass.edges[last])
+            .map(|(e, _)| e)
+            .ok_or("outer fit")?;
+        // Every ring is an ellipse of the outer one's shape around nearly
+        // its centre (concentric circles in one plane); the rings a lattice
+        // of squares or a paving shows around one of its cells are not.
+        for points in &pass.edges[1..] {
+            let (ring, inliers) = fit_robust(points).ok_or("ring fit")?;
+            if (inliers.len() as f64) < MIN_RING_INLIERS * points.len() as f64
+                || rings::rms(&ring, &inliers) > MAX_FIT_RMS_PX + 0.01 * ring.radius()
+            {
+                return Err("ring fit");
+            }
+        }
+        for ring in [&inner, &outer] {
+            let aspect = |e: &Ellipse| e.a.min(e.b) / e.a.max(e.b);
+            if (aspect(ring) - aspect(&outer)).abs() > MAX_ASPECT_GAP + 0.5 / ring.radius()
+                || geometry::dist(ring.c, outer.c) > MAX_RING_OFFSET * outer.radius() + 0.5
+            {
+                return Err("rings not concentric");
+            }
+        }
+        let (lo, hi) = layout.radii[0];
+        let ratio = inner.radius() / outer.radius();
+        if !((lo - 0.05)..=(hi + 0.05)).contains(&ratio) {
+            return Err("ring ratio");
+        }
+        if !bullseye_on_board(img, &inner, pos) {
+            return Err("no board");
+        }
+        let c = concentric_centre(&inner, &outer)
+            .filter(|c| geometry::dist(*c, inner.c) < 0.1 * inner.radius() + 0.5)
+            .unwrap_or(inner.c);
+        self.found(
+            start,
+            c,
+            2.0 * outer.radius(),
+            &inner,
+            rms,
+            coverage,
+            (pass.contrast, pass.light_ratio),
+        )
+    }
+
+    fn disc(&self, img: &GreyView, start: Ellipse, e: Ellipse) -> Result<Found, &'static str> {
+        let pass = rays(img, &e, &[1.0], 1.0).ok_or("no edges")?;
+        let coverage = self.coverage(&pass, 1)?;
+        // Light outside: a dark disc.
+        let dark = pass.polarity[0] > 0.0;
+        if !(if dark {
+            self.dark_discs
+        } else {
+            self.light_discs
+        }) {
+            return Err("disc polarity");
+        }
+        let (e, inliers) = fit_robust(&pass.edges[0]).ok_or("inner fit")?;
+        let rms = rms(&e, &inliers);
+        // The ellipse's own centre is biased under perspective; the
+        // board's subpixel sides tell where the disc's centre lies.
+        // Without a pair of opposite ones (sides faint against the
+        // ground, or hidden), the ellipse's centre.
+        let sides = board_sides(img, &e, pass.polarity[0], self.board)?;
+        let c = perspective_centre(&e, &sides)
+            .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
+            .unwrap_or(e.c);
+        self.found(
+            start,
+            c,
+            2.0 * e.radius(),
+            &e,
+            rms,
+            coverage,
+            (pass.contrast, pass.light_ratio),
+        )
+    }
+
+    /// The least share of rays that saw each of the first `edges` edges.
+    fn coverage(&self, pass: &RayPass, edges: usize) -> Result<f64, &'static str> {
         let n = pass.rays as f64;
-        let edges_used = if bullseye { 3 } else { 1 };
-        let coverage = pass.edges[..edges_used]
+        let coverage = pass.edges[..edges]
             .iter()
             .map(|v| v.len() as f64 / n)
             .fold(1.0, f64::min);
         if coverage < MIN_COVERAGE {
             return Err("coverage");
         }
-        let (e, inliers) = fit_robust(&pass.edges[0]).ok_or("inner fit")?;
-        let rms = rms(&e, &inliers);
-        let (centre, size) = if bullseye {
-            let outer = fit_robust(&pass.edges[2])
-                .map(|(e, _)| e)
-                .or(outer)
-                .ok_or("outer fit")?;
-            let ratio = outer.radius() / e.radius();
-            if !(2.6..=3.4).contains(&ratio) {
-                return Err("ring ratio");
-            }
-            if !bullseye_on_board(img, &e) {
-                return Err("no board");
-            }
-            let c = concentric_centre(&e, &outer)
-                .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
-                .unwrap_or(e.c);
-            (c, 2.0 * outer.radius())
-        } else {
-            // The ellipse's own centre is biased under perspective; the
-            // board's subpixel sides tell where the disc's centre lies.
-            // Without a pair of opposite ones (sides faint against the
-            // ground, or hidden), the ellipse's centre.
-            let sides = board_sides(img, &e, pass.polarity[0])?;
-            let c = perspective_centre(&e, &sides)
-                .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
-                .unwrap_or(e.c);
-            (c, 2.0 * e.radius())
-        };
+        Ok(coverage)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn found(
+        &self,
+        start: Ellipse,
+        centre: Pt,
+        size: f64,
+        e: &Ellipse,
+        rms: f64,
+        coverage: f64,
+        (contrast, light_ratio): (f64, f64),
+    ) -> Result<Found, &'static str> {
         if !self.sizes.accepts(size, SIZE_SLACK) {
             return Err("size");
+        }
+        if light_ratio < MIN_LIGHT_RATIO {
+            return Err("not ink");
         }
         if rms > MAX_FIT_RMS_PX + 0.01 * e.radius() {
             return Err("fit rms");
         }
-        let confidence = (coverage
-            * (1.0 / (1.0 + (rms / 0.25).powi(2)))
-            * (pass.contrast / 40.0).clamp(0.0, 1.0))
-        .powf(1.0 / 3.0);
+        let confidence =
+            (coverage * (1.0 / (1.0 + (rms / 0.25).powi(2))) * (contrast / 40.0).clamp(0.0, 1.0))
+                .powf(1.0 / 3.0);
         let r = size / 2.0;
         Ok(Found {
             centre,
@@ -347,12 +509,12 @@ impl Detector for CircleDetector {
         seams: [bool; 4],
     ) -> Result<Vec<Detection>, DetectError> {
         let err = DetectError::at(origin);
-        // Innermost edges: a bullseye's centre disc is 1/3 of its radius.
-        // Candidates are searched down to min_px / 1.15, below the sizes
-        // accepted (SizeRange::accepts), and a thresholded disc's contour
-        // runs inside its edge: a 40 px bullseye's centre disc fell below a
-        // bound of min_px / 6.
-        let r_min = (self.sizes.min_px / 1.15 / 6.0).max(2.5);
+        // Innermost edges: a bullseye's centre disc, as small as its
+        // designs allow. Candidates are searched down to min_px / 1.15,
+        // below the sizes accepted (SizeRange::accepts), and a thresholded
+        // disc's contour runs inside its edge: a 40 px 1:2:3 bullseye's
+        // centre disc fell below a bound of min_px / 6.
+        let r_min = (self.sizes.min_px / 1.15 / 2.0 * self.least_candidate()).max(2.5);
         let r_max = self.sizes.max_px / 2.0;
         // A disc's own radius (its size is its diameter): the least radius
         // an arc of a shadow-split disc is looked for at.

@@ -218,11 +218,18 @@ fn detect_in(data: &[u8], w: usize, min_px: f64) -> Vec<Detection> {
     let tile = Mat::from_slice(data)
         .and_then(|m| m.reshape(1, w as i32)?.try_clone())
         .expect("tile");
-    let mut detector = CircleDetector::new(SizeRange {
-        min_px,
-        max_px: 200.0,
-        reach_px: 200.0,
-    });
+    let designs: Vec<TargetDesign> = crate::pipeline::detect::design::presets()
+        .into_iter()
+        .filter(|d| d.marker_type() == MarkerType::Circle)
+        .collect();
+    let mut detector = CircleDetector::new(
+        SizeRange {
+            min_px,
+            max_px: 200.0,
+            reach_px: 200.0,
+        },
+        &designs,
+    );
     detector.detect(&tile, (0, 0), [false; 4]).expect("detect")
 }
 
@@ -363,4 +370,87 @@ fn a_disc_in_a_ring_at_the_frames_edge_is_not_a_target() {
         .map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8)
         .collect();
     assert_eq!(detect_in(&data, w, 40.0), vec![]);
+}
+
+/// Rings of `edges` (radii over the outer radius, dark centre when
+/// `dark_centre`) of outer radius 36 on a board 1.25x their diameter of
+/// the colour past the last edge, on textured grey ground.
+fn rings_image(edges: &[f64], dark_centre: bool) -> (Vec<u8>, usize, Pt) {
+    let (w, c, r) = (220usize, (110.3, 109.6), 36.0);
+    let (dark, light) = (30.0, 220.0);
+    let data = crate::pipeline::detect::test_image::render_image(w, |x, y| {
+        let (dx, dy) = (x - c.0, y - c.1);
+        let d = dx.hypot(dy) / r;
+        let crossed = edges.iter().filter(|&&e| d >= e).count();
+        if d >= 1.0 && dx.abs().max(dy.abs()) >= 1.25 * r {
+            return 120.0 + 8.0 * (0.21 * x).sin() * (0.13 * y).cos();
+        }
+        if (crossed % 2 == 0) == dark_centre {
+            dark
+        } else {
+            light
+        }
+    });
+    (data, w, c)
+}
+
+/// The detector of `designs` (preset names or JSON) on one tile.
+fn detect_designs(data: &[u8], w: usize, designs: &[&str]) -> Vec<Detection> {
+    let tile = Mat::from_slice(data)
+        .and_then(|m| m.reshape(1, w as i32)?.try_clone())
+        .expect("tile");
+    let designs: Vec<TargetDesign> = designs
+        .iter()
+        .map(|d| TargetDesign::preset(d).unwrap_or_else(|| TargetDesign::from_json(d).unwrap()))
+        .collect();
+    let sizes = SizeRange {
+        min_px: 40.0,
+        max_px: 200.0,
+        reach_px: 200.0,
+    };
+    CircleDetector::new(sizes, &designs)
+        .detect(&tile, (0, 0), [false; 4])
+        .expect("detect")
+}
+
+#[test]
+fn bullseyes_of_other_ring_ratios_are_found_from_their_design() {
+    let light_centre = r#"{"name":"halo","kind":"rings","polarity":"light_on_dark","ring_radii":[[0.3,0.5],[0.6,0.8],1]}"#;
+    for (edges, dark, design) in [
+        (&[1.0 / 3.0, 2.0 / 3.0, 1.0][..], true, "bullseye"),
+        (&[0.45, 0.8, 1.0][..], true, "bullseye"),
+        (&[0.25, 0.5, 1.0][..], true, "bullseye"),
+        (&[0.2, 0.4, 0.6, 0.8, 1.0][..], true, "bullseye-5"),
+        (&[0.4, 0.7, 1.0][..], false, light_centre),
+    ] {
+        let (data, w, c) = rings_image(edges, dark);
+        let found = detect_designs(&data, w, &[design]);
+        assert_eq!(found.len(), 1, "{edges:?}: {found:?}");
+        let d = &found[0];
+        assert!(
+            geometry::dist(d.center, c) < 0.1,
+            "{edges:?}: {:?}",
+            d.center
+        );
+        assert!(
+            (d.size_px - 72.0).abs() < 1.5,
+            "{edges:?}: size {}",
+            d.size_px
+        );
+    }
+    // Rings outside a design's ranges are not that design: a 1:2:3
+    // bullseye is not the five-ring one, nor a light-centred one.
+    let (data, w, _) = rings_image(&[1.0 / 3.0, 2.0 / 3.0, 1.0], true);
+    assert_eq!(detect_designs(&data, w, &["bullseye-5"]), vec![]);
+    assert_eq!(detect_designs(&data, w, &[light_centre]), vec![]);
+    // Five rings found as themselves, not as their inner three, when both
+    // designs are searched.
+    let (data, w, _) = rings_image(&[0.2, 0.4, 0.6, 0.8, 1.0], true);
+    let found = detect_designs(&data, w, &["bullseye", "bullseye-5"]);
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(
+        (found[0].size_px - 72.0).abs() < 1.5,
+        "size {}",
+        found[0].size_px
+    );
 }

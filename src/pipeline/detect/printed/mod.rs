@@ -184,11 +184,15 @@ pub const MIN_PRINTED_PX: f64 = 32.0;
 const RING_SAMPLES: usize = 64;
 
 impl PrintedDetector {
+    /// A detector of `designs`' crosses and checkers (others are ignored).
     pub fn new(marker_type: MarkerType, designs: Vec<TargetDesign>, mut sizes: SizeRange) -> Self {
         sizes.min_px = sizes.min_px.max(MIN_PRINTED_PX);
         PrintedDetector {
             marker_type,
-            designs,
+            designs: designs
+                .into_iter()
+                .filter(|d| matches!(d.kind, DesignKind::Cross | DesignKind::Checker))
+                .collect(),
             sizes,
             params: Params::default(),
             basis: RingBasis::new(RING_SAMPLES),
@@ -234,7 +238,8 @@ impl PrintedDetector {
                     -1.0
                 },
             ),
-            DesignKind::Checker => (2, 1.0),
+            // A checker (the detector holds crosses and checkers only).
+            _ => (2, 1.0),
         };
         let signed: Vec<f64> = ring.iter().map(|v| sign * v).collect();
         // Harmonic k peaks on the bars (cross) or the light quadrants'
@@ -246,7 +251,8 @@ impl PrintedDetector {
         let mut dirs = [unit(a0), unit(a0 + FRAC_PI_2)];
         let width0 = match design.kind {
             DesignKind::Cross => bar_width_on_ring(&signed, r),
-            DesignKind::Checker => (0.08 * c.size).max(2.5),
+            // A checker (the detector holds crosses and checkers only).
+            _ => (0.08 * c.size).max(2.5),
         };
         let mut centre = c.centre;
         let mut width = width0;
@@ -263,7 +269,8 @@ impl PrintedDetector {
             };
             let start = match design.kind {
                 DesignKind::Cross => 0.5 * width + 2.5,
-                DesignKind::Checker => width + 1.5,
+                // A checker (the detector holds crosses and checkers only).
+                _ => width + 1.5,
             };
             let step = (limit / 60.0).max(0.5);
             for (i, arm) in arms.iter_mut().enumerate() {
@@ -272,7 +279,8 @@ impl PrintedDetector {
                     DesignKind::Cross => Feature::Bar { sign },
                     // Boundary i's +normal side is quadrant (i, i+1): light
                     // on arms 0 and 2 when quadrant (+,+) is light.
-                    DesignKind::Checker => Feature::Step {
+                    // A checker (the detector holds crosses and checkers only).
+                    _ => Feature::Step {
                         sign: checker_side(img, centre, &dirs, i, width)
                             .ok_or(Rejection::ArmUnclear)?,
                     },
@@ -378,7 +386,8 @@ impl PrintedDetector {
                     pr::quantile(&w, 0.5)
                 }
             }),
-            DesignKind::Checker => [0.0; 2],
+            // A checker (the detector holds crosses and checkers only).
+            _ => [0.0; 2],
         };
         let fit = Fit {
             centre,
@@ -407,7 +416,8 @@ impl PrintedDetector {
         // leaves that arm untold.
         let feature = match design.kind {
             DesignKind::Cross => Feature::Bar { sign },
-            DesignKind::Checker => Feature::Step { sign: 1.0 },
+            // A checker (the detector holds crosses and checkers only).
+            _ => Feature::Step { sign: 1.0 },
         };
         let running = (0..4)
             .filter(|&i| {

@@ -114,7 +114,8 @@ pub fn verify(img: &GreyView, design: &TargetDesign, fit: &Fit) -> Option<Verdic
                     }
                     in_bar == (design.polarity == Polarity::LightOnDark)
                 }
-                DesignKind::Checker => {
+                // A checker (the detector holds crosses and checkers only).
+                _ => {
                     if da < EDGE_PX || db < EDGE_PX {
                         continue;
                     }

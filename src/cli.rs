@@ -132,7 +132,7 @@ pub struct DetectArgs {
     /// Frames (JPEG, TIFF/GeoTIFF, PNG) or folders of them.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
-    /// Target types to look for, comma separated: apriltag, aruco, crosshair (white cross on black, 2x2 checker), circle (bullseyes of any ring ratio, discs on a board).
+    /// Target types to look for, comma separated: apriltag, aruco, crosshair (white cross on black, 2x2 checker), circle (bullseyes of the common ring ratios, discs on a board).
     #[arg(
         long,
         value_delimiter = ',',

@@ -49,7 +49,8 @@ pub struct JobParams {
     /// frame's georeference when it has one).
     pub gsd_cm: Option<f64>,
     /// A printed target's design, found from its description: a preset
-    /// name (`cross`, `checker`) or the design as JSON text (see the
+    /// name (`cross`, `checker`, `bullseye`, `bullseye-5`, `disc-black`,
+    /// `disc-white`) or the design as JSON text (see the
     /// README's "Printed targets"). Stored in canonical JSON.
     #[serde(default)]
     #[schema(example = "cross")]

@@ -183,10 +183,7 @@ fn nothing_usable_and_usage_errors_have_their_own_exit_codes() {
             design.to_str().unwrap(),
             "bar_width [0.3, 0.1] must satisfy",
         ),
-        (
-            "crosss",
-            "neither a preset (cross, checker) nor a readable file",
-        ),
+        ("crosss", "neither a preset (cross, checker, bullseye"),
     ] {
         let o = detect(&[
             dir.path().to_str().unwrap(),

@@ -234,6 +234,55 @@ pub(super) fn bullseye_on_board(img: &GreyView, e: &Ellipse, pos: &[f64]) -> boo
     seen >= n / 2 && board as f64 >= MIN_BOARD_SHARE * seen as f64
 }
 
+/// How well the rings drawn at `pos` (edges in multiples of `e`'s radii,
+/// the centre disc dark when `dark_centre`, the board past the last edge)
+/// match the image: the normalised correlation of log grey, so a shadow's
+/// scaling changes little, sampled on three circles within the middle of
+/// each ring. A printed bullseye's rings are uniform all round; the
+/// stretches a lattice or paving shows around one of its cells cross light
+/// and dark alike.
+pub(super) fn rings_score(img: &GreyView, e: &Ellipse, pos: &[f64], dark_centre: bool) -> f64 {
+    let n = 64;
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    let last = pos[pos.len() - 1];
+    for k in 0..=pos.len() {
+        let from = if k == 0 { 0.3 * pos[0] } else { pos[k - 1] };
+        let to = if k < pos.len() {
+            pos[k]
+        } else {
+            last * BOARD_MARGIN
+        };
+        let light = (k % 2 == 0) != dark_centre;
+        for f in [0.35, 0.5, 0.65] {
+            let s = from + f * (to - from);
+            for i in 0..n {
+                let d = e.ray(std::f64::consts::TAU * (i as f64 + 0.5 * f) / n as f64);
+                if let Some(v) = img.sample(e.c.0 + d.0 * s, e.c.1 + d.1 * s) {
+                    xs.push((v + 1.0).ln());
+                    ys.push(if light { 1.0 } else { 0.0 });
+                }
+            }
+        }
+    }
+    correlation(&xs, &ys)
+}
+
+/// Pearson correlation of two samples (0 when either is constant).
+fn correlation(x: &[f64], y: &[f64]) -> f64 {
+    let n = x.len().max(1) as f64;
+    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (a, b) in x.iter().zip(y) {
+        sxy += (a - mx) * (b - my);
+        sxx += (a - mx) * (a - mx);
+        syy += (b - my) * (b - my);
+    }
+    if sxx <= 0.0 || syy <= 0.0 {
+        return 0.0;
+    }
+    sxy / (sxx * syy).sqrt()
+}
+
 /// Samples rays through the ellipse frame and finds each edge's midpoint
 /// crossing near its position in `pos` (multiples of the ellipse's radii);
 /// `beyond` is how far past the last edge its outer level may be read.

@@ -103,6 +103,41 @@ impl CameraMeta {
     }
 }
 
+/// Steepest look off nadir (degrees) for which a frame's ground sample
+/// distance is taken from its height: beyond it the ground's distance
+/// varies too much across the frame.
+const MAX_GSD_TILT_DEG: f64 = 20.0;
+
+impl CameraMeta {
+    /// Focal length in pixels, from the focal length and the focal plane
+    /// resolution, or else the 35 mm equivalent over the frame's diagonal.
+    pub fn focal_px(&self, width: usize, height: usize) -> Option<f64> {
+        match (self.focal_mm, self.focal_plane_px_per_mm, self.focal_35mm) {
+            (Some(f), Some(ppm), _) => Some(f * ppm),
+            (_, _, Some(f35)) => {
+                Some(f35 * (width as f64).hypot(height as f64) / 36f64.hypot(24.0))
+            }
+            _ => None,
+        }
+    }
+
+    /// Ground sample distance (metres per pixel) at the frame's centre for
+    /// a camera looking down: the height above the take-off point (DJI
+    /// RelativeAltitude, so level ground is assumed) over the focal length
+    /// in pixels, along the tilted line of sight. None without those, or
+    /// when the gimbal's pitch is unknown or more than
+    /// [`MAX_GSD_TILT_DEG`] off nadir.
+    pub fn ground_m_per_px(&self, width: usize, height: usize) -> Option<f64> {
+        let height_m = self.rel_alt_m.filter(|h| *h > 1.0)?;
+        let tilt = 90.0 + self.gimbal_pitch_deg?;
+        if tilt.abs() > MAX_GSD_TILT_DEG {
+            return None;
+        }
+        let focal = self.focal_px(width, height).filter(|f| *f > 0.0)?;
+        Some(height_m / tilt.to_radians().cos() / focal)
+    }
+}
+
 /// The numbers in a GDAL EXIF value: `(37) (46) (30.12)` or `24`.
 fn numbers(value: &str) -> Vec<f64> {
     value
@@ -174,5 +209,21 @@ mod tests {
         assert_eq!(m.focal_plane_px_per_mm, Some(400.0));
         assert_eq!(m.gimbal_roll_deg, None);
         assert!(CameraMeta::from_items(|_| None, xmp).is_none());
+        // 80.2 m over 8.8 mm x 400 px/mm = 3520 px: 2.28 cm per pixel.
+        let gsd = m.ground_m_per_px(4000, 3000).unwrap();
+        assert!(
+            (gsd - 80.2 / 3520.0 / 0.1f64.to_radians().cos()).abs() < 1e-9,
+            "{gsd}"
+        );
+        let oblique = CameraMeta {
+            gimbal_pitch_deg: Some(-45.0),
+            ..m.clone()
+        };
+        assert_eq!(oblique.ground_m_per_px(4000, 3000), None);
+        let no_height = CameraMeta {
+            rel_alt_m: None,
+            ..m
+        };
+        assert_eq!(no_height.ground_m_per_px(4000, 3000), None);
     }
 }

@@ -185,7 +185,13 @@ pub fn detect_frame(
     let header = frame.header().clone();
     let (w, h) = (header.width, header.height);
     let grid = TileGrid::new(w, h, options.tile_size, options.overlap());
-    let frame_gsd = header.georeference.as_ref().and_then(|g| g.ground_m_per_px);
+    // The georeference's pixel size, or else the camera's height over its
+    // focal length (a raw drone frame).
+    let frame_gsd = header
+        .georeference
+        .as_ref()
+        .and_then(|g| g.ground_m_per_px)
+        .or_else(|| header.camera.as_ref()?.ground_m_per_px(w, h));
     let sizes = SizeRange::for_frame(&options.detector, options.max_target_px as f64, frame_gsd);
     let mut detectors = build_detectors(&options.detector, sizes)?;
     frame.prepare_stretch()?;

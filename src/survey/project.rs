@@ -85,15 +85,7 @@ pub fn expected_positions(
 
 /// Focal length in pixels.
 pub fn focal_px(camera: &CameraMeta, width: usize, height: usize) -> Option<f64> {
-    match (
-        camera.focal_mm,
-        camera.focal_plane_px_per_mm,
-        camera.focal_35mm,
-    ) {
-        (Some(f), Some(ppm), _) => Some(f * ppm),
-        (_, _, Some(f35)) => Some(f35 * (width as f64).hypot(height as f64) / 36f64.hypot(24.0)),
-        _ => None,
-    }
+    camera.focal_px(width, height)
 }
 
 /// Projects a WGS84 point (`z` in the survey's heights) into the frame.

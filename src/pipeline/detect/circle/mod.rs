@@ -147,7 +147,14 @@ const SHADOW_SEARCH: f64 = 3.5;
 /// Most rejections on a cluttered frame (1172 of 1430 on clutter seeds
 /// 700-701) are dark blobs without a uniform ring of board around them; on 12 frames of printed circles
 /// every target a second look found had first failed on its board's square.
-const NOT_SHADOW: [&str; 4] = ["board not uniform", "no edges", "inner fit", "no rings"];
+/// A candidate of no size a design could have keeps its size in the copy.
+const NOT_SHADOW: [&str; 5] = [
+    "board not uniform",
+    "no edges",
+    "inner fit",
+    "no rings",
+    "size",
+];
 /// Half side, in radii (the candidate's, then the found target's if
 /// larger), of the copy with a shadow lifted: the rays walk to where a
 /// board ends, up to 4.5 radii out.
@@ -159,6 +166,13 @@ const SHADOW_COPY: f64 = 4.8;
 const SIZE_SLACK: SizeSlack = SizeSlack {
     below: 1.10,
     above: 1.15,
+};
+/// The slack on a size known before the subpixel fits (the refined
+/// candidate's radius, the rings' measured radii): wider than
+/// [`SIZE_SLACK`], which the final size must meet.
+const EARLY_SIZE_SLACK: SizeSlack = SizeSlack {
+    below: 1.25,
+    above: 1.3,
 };
 /// A contour is an ellipse when its area is this close to its fit's.
 const ROUNDNESS: (f64, f64) = (0.85, 1.15);
@@ -314,7 +328,30 @@ impl CircleDetector {
         self.rings.iter().map(|l| l.radii[0].0).fold(disc, f64::min)
     }
 
+    /// The ring designs whose centre disc a candidate of radius `r` may be
+    /// (the target's size then within the sizes searched), and whether it
+    /// may be a disc.
+    fn possible(&self, r: f64) -> (Vec<&RingLayout>, bool) {
+        let fits = |lo: f64, hi: f64| {
+            hi >= self.sizes.min_px / EARLY_SIZE_SLACK.below
+                && lo <= self.sizes.max_px * EARLY_SIZE_SLACK.above
+        };
+        let rings = self
+            .rings
+            .iter()
+            .filter(|l| fits(2.0 * r / l.radii[0].1, 2.0 * r / l.radii[0].0))
+            .collect();
+        let disc = (self.dark_discs || self.light_discs) && fits(2.0 * r, 2.0 * r);
+        (rings, disc)
+    }
+
     fn analyse(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
+        // A contour's radius is within a pixel or two of the edge's.
+        let (rings, disc) = self.possible(start.radius() + 2.0);
+        let (rings_below, disc_below) = self.possible((start.radius() - 2.0).max(1.0));
+        if rings.is_empty() && rings_below.is_empty() && !disc && !disc_below {
+            return Err("size");
+        }
         // The candidate's own edge: the threshold's contour can miss a
         // small centre disc's edge by a pixel or two.
         let mut e = start;
@@ -322,16 +359,20 @@ impl CircleDetector {
             let pass = rays(img, &e, &[1.0], 1.0).ok_or("no edges")?;
             e = fit(&pass.edges[0]).ok_or("inner fit")?;
         }
-        let measured = if self.rings.is_empty() {
+        let (rings, disc) = self.possible(e.radius());
+        if rings.is_empty() && !disc {
+            return Err("size");
+        }
+        let reach = rings.iter().map(|l| l.reach()).fold(0.0, f64::max);
+        let measured = if rings.is_empty() {
             Vec::new()
         } else {
-            radial_edges(img, &e, 1.2 * self.rings[0].reach().max(1.0))
+            radial_edges(img, &e, 1.2 * reach.max(1.0))
         };
-        let matched = self
-            .rings
-            .iter()
+        let matched = rings
+            .into_iter()
             .find_map(|l| match_layout(l, &measured).map(|pos| (l, pos)));
-        let discs = self.dark_discs || self.light_discs;
+        let discs = disc;
         match matched {
             // A disc's board and the ground past it can show edges like a
             // bullseye's: a disc is still tried when the rings fail.
@@ -356,6 +397,12 @@ impl CircleDetector {
         pos: &[f64],
     ) -> Result<Found, &'static str> {
         let last = pos.len() - 1;
+        if !self
+            .sizes
+            .accepts(2.0 * pos[last] * e.radius(), EARLY_SIZE_SLACK)
+        {
+            return Err("size");
+        }
         let gap = pos[last] - if last == 0 { 0.0 } else { pos[last - 1] };
         let pass = rays(img, &e, pos, gap.min(0.55 * pos[last])).ok_or("no edges")?;
         if !is_bullseye(&pass, layout) {
@@ -413,6 +460,11 @@ impl CircleDetector {
     }
 
     fn disc(&self, img: &GreyView, start: Ellipse, e: Ellipse) -> Result<Found, &'static str> {
+        // Most candidates are a bullseye's possible centre disc, far too
+        // small to be a disc: they end here, before the board's search.
+        if !self.sizes.accepts(2.0 * e.radius(), EARLY_SIZE_SLACK) {
+            return Err("size");
+        }
         let pass = rays(img, &e, &[1.0], 1.0).ok_or("no edges")?;
         let coverage = self.coverage(&pass, 1)?;
         // Light outside: a dark disc.

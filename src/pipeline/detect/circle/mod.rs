@@ -357,7 +357,12 @@ impl CircleDetector {
         let mut e = start;
         for _ in 0..2 {
             let pass = rays(img, &e, &[1.0], 1.0).ok_or("no edges")?;
-            e = fit(&pass.edges[0]).ok_or("inner fit")?;
+            let refined = fit(&pass.edges[0]).ok_or("inner fit")?;
+            let moved = geometry::dist(refined.c, e.c) + (refined.radius() - e.radius()).abs();
+            e = refined;
+            if moved < 0.25 {
+                break;
+            }
         }
         let (rings, disc) = self.possible(e.radius());
         if rings.is_empty() && !disc {

@@ -67,9 +67,12 @@ pub(super) fn radial_edges(img: &GreyView, e: &Ellipse, s_max: f64) -> Vec<(f64,
     }
     // Where fewer than half the rays still see the image, the profile ends.
     let m: Vec<f64> = columns
-        .iter()
+        .iter_mut()
         .take_while(|c| c.len() >= rays / 2)
-        .map(|c| pr::quantile(c, 0.5))
+        .map(|c| {
+            let mid = c.len() / 2;
+            *c.select_nth_unstable_by(mid, f64::total_cmp).1
+        })
         .collect();
     profile_edges(&m, ds)
 }

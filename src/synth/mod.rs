@@ -16,7 +16,7 @@ use std::path::Path;
 use std::str::FromStr;
 
 pub use exif::{write_drone_meta, DroneMeta};
-pub use printed::{PrintedDesign, PrintedSpec};
+pub use printed::{Marking, PrintedDesign, PrintedSpec};
 pub use render::{render, Clutter, GreyImage, MarkerSpec, Scene, Truth};
 pub use write::{write_image, GeoSpec, SampleFormat};
 
@@ -228,7 +228,7 @@ pub fn printed_scene(
                 },
                 (_, 0) => PrintedDesign::Cross {
                     bar: rng.range(0.12, 0.3),
-                    marking: rng.uniform() < 0.5,
+                    marking: Marking::ALL[(rng.uniform() * 6.0) as usize % 6],
                 },
                 _ => PrintedDesign::Checker,
             };

@@ -15,8 +15,8 @@ use super::Rng;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum PrintedDesign {
     /// A white cross with bars `bar` wide running the full side of a black
-    /// square; `marking` adds a small white square near one outer corner.
-    Cross { bar: f64, marking: bool },
+    /// square, with a white `marking` in one quadrant.
+    Cross { bar: f64, marking: Marking },
     /// 2x2 checker: two black and two white quadrants.
     Checker,
     /// Black disc, white ring and black ring with edges at `inner`,
@@ -25,6 +25,56 @@ pub enum PrintedDesign {
     Bullseye { inner: f64, middle: f64 },
     /// A disc on a square board of twice its diameter, in the other colour.
     Disc { white_on_black: bool },
+}
+
+/// A marking in one of a cross's quadrants, as real targets carry (a
+/// number's stroke, a bar, a hook, a triangle): most touch or run beside
+/// a bar, which must neither end that arm nor move the centre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Marking {
+    None,
+    /// A small square near the outer corner, clear of the bars.
+    Square,
+    /// A short bar beside a bar, touching it along its length.
+    BarBeside,
+    /// A triangle in the quadrant's inner corner, touching both bars.
+    Triangle,
+    /// A bar along the quadrant's diagonal from the bars' corner outward.
+    Diagonal,
+    /// An L: a short bar beside a bar, touching it, its end turned away.
+    Hook,
+}
+
+impl Marking {
+    pub const ALL: [Marking; 6] = [
+        Marking::None,
+        Marking::Square,
+        Marking::BarBeside,
+        Marking::Triangle,
+        Marking::Diagonal,
+        Marking::Hook,
+    ];
+
+    /// Whether the marking covers (x, y) of a cross with bars `bar` wide
+    /// (target units, centre at 0, the side 1); it lies in the quadrant
+    /// x > 0, y < 0 and inside the board's outer band (|x|, |y| < 0.42).
+    fn covers(self, x: f64, y: f64, bar: f64) -> bool {
+        // Distances from the vertical and the horizontal bar's edges.
+        let (u, v) = (x - bar / 2.0, -y - bar / 2.0);
+        if u < 0.0 || v < 0.0 || x > 0.42 || -y > 0.42 {
+            return false;
+        }
+        match self {
+            Marking::None => false,
+            Marking::Square => (x - 0.36).abs() < 0.05 && (y + 0.36).abs() < 0.05,
+            Marking::BarBeside => u < 0.05 && (0.08..0.3).contains(&v),
+            Marking::Triangle => u + v < 0.16,
+            Marking::Diagonal => (x + y).abs() < 0.03,
+            Marking::Hook => {
+                (v < 0.05 && (0.06..0.25).contains(&u)) || ((0.2..0.25).contains(&u) && v < 0.15)
+            }
+        }
+    }
 }
 
 impl PrintedDesign {
@@ -84,8 +134,7 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
         let r = x.hypot(y);
         let is_white = match design {
             PrintedDesign::Cross { bar, marking } => {
-                let in_mark = marking && (x - 0.36).abs() < 0.05 && (y + 0.36).abs() < 0.05;
-                x.abs() < bar / 2.0 || y.abs() < bar / 2.0 || in_mark
+                x.abs() < bar / 2.0 || y.abs() < bar / 2.0 || marking.covers(x, y, bar)
             }
             PrintedDesign::Checker => x * y < 0.0,
             PrintedDesign::Bullseye { inner, middle } => {

@@ -128,7 +128,7 @@ fn place(scene: &mut Scene, id: Option<u32>, center: (f64, f64), rotation: f64) 
         None => scene.printed.push(PrintedSpec {
             design: PrintedDesign::Cross {
                 bar: 0.2,
-                marking: false,
+                marking: gcp_tagger::synth::Marking::None,
             },
             center,
             size_px: 70.0,

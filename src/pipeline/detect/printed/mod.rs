@@ -73,6 +73,10 @@ pub struct Params {
     /// Bar widths measured on a profile, relative to the expected width,
     /// that give a centre-line point.
     pub width_band: (f64, f64),
+    /// Points where a cross's bar measures wider than its own width (the
+    /// narrower quarter of its widths) by more than this share, plus half
+    /// a pixel, lie beside a marking that touches the bar: left out.
+    pub max_widening: f64,
     /// Share of an arm's on-board profiles that must give a point.
     pub min_coverage: f64,
     /// Largest RMS distance, in pixels, of the points from their line...
@@ -110,6 +114,7 @@ impl Default for Params {
             min_salience: 10.0,
             side_share: 0.4,
             width_band: (0.6, 1.5),
+            max_widening: 0.15,
             min_coverage: 0.35,
             max_fit_rms_px: 0.75,
             max_fit_rms_share: 0.005,
@@ -261,6 +266,8 @@ impl PrintedDetector {
         let mut arms: [Arm; 4] = Default::default();
         let mut lines = [(centre, dirs[0]); 2];
         let mut rms = [0.0; 2];
+        // Each line's bar widths as measured, markings' included.
+        let mut measured: [Vec<f64>; 2] = Default::default();
         for pass in 0..2 {
             let limit = if pass == 0 {
                 0.35 * c.size
@@ -317,6 +324,28 @@ impl PrintedDetector {
                     return Err(Rejection::ArmUnclear);
                 }
             }
+            // A marking touching a bar along its side widens it there, and
+            // moves those points' middles by half the widening: they are
+            // left out. The narrower quarter of a line's widths (its two
+            // arms; a marking lies in one quadrant, beside one arm of each
+            // line) is the bar's own width.
+            if design.kind == DesignKind::Cross {
+                for l in 0..2 {
+                    measured[l] = on_line(&arms, l, |a| &a.widths);
+                    let own = pr::quantile(&measured[l], 0.25);
+                    let most = own * (1.0 + p.max_widening) + 0.5;
+                    for arm in [l, l + 2] {
+                        let arm = &mut arms[arm];
+                        let keep: Vec<bool> = arm.widths.iter().map(|w| *w <= most).collect();
+                        let mut k = keep.iter();
+                        arm.points
+                            .retain(|_| *k.next().expect("one width per point"));
+                        let mut k = keep.iter();
+                        arm.widths
+                            .retain(|_| *k.next().expect("one width per point"));
+                    }
+                }
+            }
             for (l, line) in lines.iter_mut().enumerate() {
                 let (fitted, inliers) =
                     pr::robust_line(&on_line(&arms, l, |a| &a.points)).ok_or(Rejection::LineFit)?;
@@ -364,13 +393,14 @@ impl PrintedDetector {
         }
         // A printed bar has one width along its length (perspective
         // changes it by a few percent); a chain of paving's squares
-        // touching at their corners, taken for a bar, widens and narrows.
+        // touching at their corners, taken for a bar, widens and narrows
+        // (judged on every width measured: a marking beside a bar widens
+        // it by less).
         if design.kind == DesignKind::Cross {
-            for l in 0..2 {
-                let w = on_line(&arms, l, |a| &a.widths);
+            for w in &measured {
                 if w.len() >= 5 {
                     let spread =
-                        (pr::quantile(&w, 0.9) - pr::quantile(&w, 0.1)) / pr::quantile(&w, 0.5);
+                        (pr::quantile(w, 0.9) - pr::quantile(w, 0.1)) / pr::quantile(w, 0.5);
                     if spread > p.max_width_spread {
                         return Err(Rejection::UnevenBar);
                     }

@@ -328,10 +328,10 @@ impl CircleDetector {
         self.rings.iter().map(|l| l.radii[0].0).fold(disc, f64::min)
     }
 
-    /// The ring designs whose centre disc a candidate of radius `r` may be
-    /// (the target's size then within the sizes searched), and whether it
-    /// may be a disc.
-    fn possible(&self, r: f64) -> (Vec<&RingLayout>, bool) {
+    /// The ring designs whose centre disc a candidate of radius `r.0` to
+    /// `r.1` may be (the target's size then within the sizes searched), and
+    /// whether it may be a disc.
+    fn possible(&self, r: (f64, f64)) -> (Vec<&RingLayout>, bool) {
         let fits = |lo: f64, hi: f64| {
             hi >= self.sizes.min_px / EARLY_SIZE_SLACK.below
                 && lo <= self.sizes.max_px * EARLY_SIZE_SLACK.above
@@ -339,17 +339,17 @@ impl CircleDetector {
         let rings = self
             .rings
             .iter()
-            .filter(|l| fits(2.0 * r / l.radii[0].1, 2.0 * r / l.radii[0].0))
+            .filter(|l| fits(2.0 * r.0 / l.radii[0].1, 2.0 * r.1 / l.radii[0].0))
             .collect();
-        let disc = (self.dark_discs || self.light_discs) && fits(2.0 * r, 2.0 * r);
+        let disc = (self.dark_discs || self.light_discs) && fits(2.0 * r.0, 2.0 * r.1);
         (rings, disc)
     }
 
     fn analyse(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
         // A contour's radius is within a pixel or two of the edge's.
-        let (rings, disc) = self.possible(start.radius() + 2.0);
-        let (rings_below, disc_below) = self.possible((start.radius() - 2.0).max(1.0));
-        if rings.is_empty() && rings_below.is_empty() && !disc && !disc_below {
+        let r = start.radius();
+        let (rings, disc) = self.possible(((r - 2.0).max(1.0), r + 2.0));
+        if rings.is_empty() && !disc {
             return Err("size");
         }
         // The candidate's own edge: the threshold's contour can miss a
@@ -364,7 +364,7 @@ impl CircleDetector {
                 break;
             }
         }
-        let (rings, disc) = self.possible(e.radius());
+        let (rings, disc) = self.possible((e.radius(), e.radius()));
         if rings.is_empty() && !disc {
             return Err("size");
         }

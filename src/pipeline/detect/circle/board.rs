@@ -395,7 +395,7 @@ impl Levels<'_> {
     fn side(&self, theta: f64) -> Option<LevelSide> {
         let r = self.e.radius();
         let h_lo = 1.3 * r;
-        let bins = ((BOARD_TO_DISC.1 + 0.3 - 1.3) * r) as usize + 1;
+        let bins = ((MAX_BOARD_TO_DISC + 0.3 - 1.3) * r) as usize + 1;
         // Drop window: a fraction of the disc's radius, several pixels.
         let w = (0.3 * r).max(6.0) as usize;
         // The drop, its bin, the normal and tangent, the columns.

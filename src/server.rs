@@ -26,8 +26,7 @@ use crate::telemetry::Metrics;
 pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
     args.validate()?;
     let max_ram_bytes = args.max_ram_bytes()?;
-    let data = DataDir::open(&args.data_dir)
-        .with_context(|| format!("cannot use data folder {}", args.data_dir.display()))?;
+    let data = DataDir::open(&args.data_dir)?;
     let db_path = data.db_path();
     let store = tokio::task::spawn_blocking(move || Store::open(&db_path))
         .await?

@@ -4,10 +4,13 @@
 //! written upload never looks like a frame.
 //!
 //! Layout: `jobs.sqlite` (the store), `frames/{job}.{ext}`,
-//! `results/{job}.json`, `spool/` (uploads in flight).
+//! `results/{job}.json`, `spool/` (uploads in flight), `owner.lock` (held
+//! by the one server using the folder).
 
-use std::io;
+use std::fs::{File, TryLockError};
+use std::io::{self, Read, Seek, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use uuid::Uuid;
 
@@ -18,22 +21,57 @@ const MAX_NAME_BYTES: usize = 200;
 #[derive(Debug, Clone)]
 pub struct DataDir {
     root: PathBuf,
+    /// The folder's owner lock, held while any clone lives.
+    _owner: Arc<File>,
+}
+
+/// Why a data folder cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    /// Another process holds the folder's owner lock.
+    #[error("data folder {folder} is in use by another gcp-tagger ({holder}); stop it first or choose another --data-dir")]
+    InUse { folder: String, holder: String },
+    #[error("data folder {folder}: {source}")]
+    Io { folder: String, source: io::Error },
 }
 
 impl DataDir {
-    /// Creates the folder layout if missing and empties the spool (uploads
-    /// that were in flight when the process stopped were never acknowledged).
-    pub fn open(root: &Path) -> io::Result<DataDir> {
+    /// Takes the folder's owner lock (an advisory lock on `owner.lock`,
+    /// held for the process's life and released by the kernel however it
+    /// ends), creates the folder layout if missing and empties the spool
+    /// (uploads that were in flight when the process stopped were never
+    /// acknowledged). A folder another process holds is refused: two
+    /// servers on one folder would each requeue and run the other's jobs.
+    pub fn open(root: &Path) -> Result<DataDir, OpenError> {
+        let io_err = |source| OpenError::Io {
+            folder: root.display().to_string(),
+            source,
+        };
+        std::fs::create_dir_all(root).map_err(io_err)?;
+        let owner = lock_owner(&root.join("owner.lock")).map_err(|e| match e {
+            Locked::Io(e) => io_err(e),
+            Locked::Held(holder) => OpenError::InUse {
+                folder: root.display().to_string(),
+                holder,
+            },
+        })?;
         let dir = DataDir {
             root: root.to_path_buf(),
+            _owner: Arc::new(owner),
         };
+        dir.make_layout().map_err(io_err)?;
+        Ok(dir)
+    }
+
+    fn make_layout(&self) -> io::Result<()> {
+        let root = &self.root;
         for sub in ["frames", "results", "spool", "surveys"] {
             std::fs::create_dir_all(root.join(sub))?;
         }
-        for entry in std::fs::read_dir(dir.root.join("spool"))? {
+        for entry in std::fs::read_dir(root.join("spool"))? {
             let _ = std::fs::remove_file(entry?.path());
         }
-        Ok(dir)
+        Ok(())
     }
 
     pub fn root(&self) -> &Path {
@@ -152,6 +190,43 @@ pub fn sanitize_name(raw: &str) -> Option<String> {
     Some(name)
 }
 
+enum Locked {
+    Io(io::Error),
+    /// Held by another process: who, as it wrote itself into the file.
+    Held(String),
+}
+
+/// Takes the exclusive lock on `path` without waiting and writes this
+/// process's id into it, for the message another process gets.
+fn lock_owner(path: &Path) -> Result<File, Locked> {
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
+        .map_err(Locked::Io)?;
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(TryLockError::WouldBlock) => {
+            let mut holder = String::new();
+            let _ = file.read_to_string(&mut holder);
+            let holder = holder.trim();
+            return Err(Locked::Held(if holder.is_empty() {
+                "its process id not yet written".to_string()
+            } else {
+                holder.to_string()
+            }));
+        }
+        Err(TryLockError::Error(e)) => return Err(Locked::Io(e)),
+    }
+    file.set_len(0).map_err(Locked::Io)?;
+    file.rewind().map_err(Locked::Io)?;
+    writeln!(file, "pid {}", std::process::id()).map_err(Locked::Io)?;
+    file.sync_all().map_err(Locked::Io)?;
+    Ok(file)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -176,5 +251,23 @@ mod tests {
         assert_eq!(sniff_image(b"\x89PNG\r\n\x1a\n"), Some("png"));
         assert_eq!(sniff_image(b"<VRTDataset>"), None);
         assert_eq!(sniff_image(b""), None);
+    }
+
+    #[test]
+    fn a_data_folder_has_one_owner_at_a_time() {
+        let dir = tempfile::tempdir().unwrap();
+        let first = DataDir::open(dir.path()).unwrap();
+        let err = DataDir::open(dir.path()).unwrap_err().to_string();
+        assert!(
+            err.contains(&format!("pid {}", std::process::id()))
+                && err.contains("in use by another gcp-tagger"),
+            "{err}"
+        );
+        // Clones share the lock; it goes with the last of them.
+        let clone = first.clone();
+        drop(first);
+        assert!(DataDir::open(dir.path()).is_err());
+        drop(clone);
+        DataDir::open(dir.path()).unwrap();
     }
 }

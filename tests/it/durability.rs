@@ -233,3 +233,56 @@ fn an_idempotency_key_makes_a_retried_upload_create_nothing_new() {
         4 + 1
     );
 }
+
+#[test]
+fn a_second_server_on_the_same_data_folder_refuses_to_start() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let big = big_frame(dir.path(), "big_0.jpg");
+    let data = dir.path().join("d");
+    let server = Server::start(&data, &["--workers", "1"]);
+    let mut upload: Vec<&Path> = vec![big.as_path()];
+    upload.extend(frames.iter().map(|p| p.as_path()));
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
+    assert_eq!(r.status(), 201);
+    let flight: Value = r.json().unwrap();
+    let id = flight["flight"]["id"].as_str().unwrap().to_string();
+    let big_job = job_id(&server, &id, "big_0.jpg");
+    wait_until("the big frame's worker", || {
+        !server.worker_pids(&big_job).is_empty()
+    });
+
+    // What a supervisor restarting during the shutdown grace does.
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+        .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(&data)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while child.try_wait().unwrap().is_none() {
+        if Instant::now() > deadline {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!("a second server started on the same data folder");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let second = child.wait_with_output().unwrap();
+    assert!(!second.status.success());
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    assert!(
+        stderr.contains("in use by another gcp-tagger")
+            && stderr.contains(&format!("pid {}", server.pid())),
+        "{stderr}"
+    );
+    assert!(second.stdout.is_empty(), "the second server never listened");
+
+    // The first server's jobs ran once each, untouched by the attempt.
+    let done = server.wait_flight(&id);
+    assert_eq!(done["jobs"]["succeeded"], 4, "{done}");
+    for job in jobs_of(&server, &id) {
+        assert_eq!(job["attempts"], 1, "{job}");
+    }
+}

@@ -40,6 +40,10 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
         &PoolConfig {
             workers: args.workers()?,
             max_ram_bytes,
+            pixels: PixelLimits {
+                max_pixels: args.max_frame_mp * 1_000_000,
+                max_side: args.max_frame_side,
+            },
         },
     );
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);

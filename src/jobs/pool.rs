@@ -12,6 +12,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use crate::pipeline::memory::{RamBudget, BASE_PROCESS_BYTES, MIB};
+use crate::storage::header::PixelLimits;
 use crate::storage::DataDir;
 use crate::telemetry::{Metrics, OutcomeLabels};
 
@@ -46,6 +47,9 @@ pub struct PoolConfig {
     pub workers: usize,
     /// The whole process's memory limit.
     pub max_ram_bytes: u64,
+    /// The frame size limits, checked again on the size the decoder opens
+    /// (an upload's header check reads the file as one reader would).
+    pub pixels: PixelLimits,
 }
 
 /// Running workers and the flags that stop them.
@@ -89,6 +93,7 @@ impl WorkerPool {
                     data: data.clone(),
                     metrics: metrics.clone(),
                     budget: budget.clone(),
+                    pixels: config.pixels,
                     stop_claiming: stop_claiming.clone(),
                     abort: abort.clone(),
                 };
@@ -146,6 +151,7 @@ struct Worker {
     data: DataDir,
     metrics: Arc<Metrics>,
     budget: Arc<RamBudget>,
+    pixels: PixelLimits,
     stop_claiming: Arc<AtomicBool>,
     abort: Arc<AtomicBool>,
 }
@@ -271,6 +277,9 @@ impl Worker {
                     height,
                     need,
                 }) => {
+                    if let Err(e) = self.pixels.admit(width, height, "opens as") {
+                        return fail("frame_too_large", e);
+                    }
                     megapixels = width as f64 * height as f64 / 1e6;
                     self.store.progress(job.id, Some((width, height)), 0, 0);
                     match self.budget.acquire(need) {

@@ -57,18 +57,29 @@ impl HeaderError {
     }
 }
 
+impl PixelLimits {
+    /// Whether a frame of `w` x `h` pixels is within the limits; the error
+    /// says what the frame `does` ("claims", "opens as") and both figures.
+    pub fn admit(&self, w: u32, h: u32, does: &str) -> Result<(), String> {
+        let pixels = w as u64 * h as u64;
+        if w > self.max_side || h > self.max_side || pixels > self.max_pixels {
+            return Err(format!(
+                "the frame {does} {w} x {h} pixels ({:.0} MP); the limits are {} px a side and {:.0} MP",
+                pixels as f64 / 1e6,
+                self.max_side,
+                self.max_pixels as f64 / 1e6
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Checks a frame's claimed size against `limits`; the error names both.
 pub fn check(path: &Path, limits: PixelLimits) -> Result<(u32, u32), HeaderError> {
     let (w, h) = dimensions(path).map_err(HeaderError::Unreadable)?;
-    let pixels = w as u64 * h as u64;
-    if w > limits.max_side || h > limits.max_side || pixels > limits.max_pixels {
-        return Err(HeaderError::TooLarge(format!(
-            "the frame claims {w} x {h} pixels ({:.0} MP); the limits are {} px a side and {:.0} MP",
-            pixels as f64 / 1e6,
-            limits.max_side,
-            limits.max_pixels as f64 / 1e6
-        )));
-    }
+    limits
+        .admit(w, h, "claims")
+        .map_err(HeaderError::TooLarge)?;
     Ok((w, h))
 }
 
@@ -180,11 +191,20 @@ fn tiff(f: &mut File, head: &[u8]) -> Result<(u32, u32), String> {
             _ => continue,
         };
         let v = u32::try_from(v).unwrap_or(u32::MAX);
-        match tag {
-            256 => w = Some(v),
-            257 => h = Some(v),
-            _ => {}
+        let (slot, name) = match tag {
+            256 => (&mut w, "ImageWidth"),
+            257 => (&mut h, "ImageLength"),
+            _ => continue,
+        };
+        // Readers differ on which of two entries they use (libtiff the
+        // first, others the last): a size check on one would let the
+        // other through.
+        if let Some(first) = *slot {
+            return Err(format!(
+                "the TIFF's first image has two {name} entries ({first} and {v})"
+            ));
         }
+        *slot = Some(v);
     }
     match (w, h) {
         (Some(w), Some(h)) => Ok((w, h)),
@@ -231,6 +251,21 @@ mod tests {
         tif.extend_from_slice(&[0, 1, 3, 0, 1, 0, 0, 0, 0x40, 0x1F, 0, 0]);
         tif.extend_from_slice(&[1, 1, 4, 0, 1, 0, 0, 0, 0x70, 0x17, 0, 0]);
         assert_eq!(dimensions(file(&tif).path()), Ok((8000, 6000)));
+
+        // The same with a second, small ImageWidth after them: refused
+        // whichever entry a reader would use.
+        let mut twice = b"II*\0\x08\0\0\0".to_vec();
+        twice.extend_from_slice(&3u16.to_le_bytes());
+        twice.extend_from_slice(&[0, 1, 4, 0, 1, 0, 0, 0, 0x30, 0x75, 0, 0]);
+        twice.extend_from_slice(&[1, 1, 4, 0, 1, 0, 0, 0, 0x30, 0x75, 0, 0]);
+        twice.extend_from_slice(&[0, 1, 3, 0, 1, 0, 0, 0, 100, 0, 0, 0]);
+        let e = check(file(&twice).path(), limits).unwrap_err();
+        assert_eq!(e.code(), "unreadable_frame");
+        assert!(
+            e.to_string()
+                .contains("two ImageWidth entries (30000 and 100)"),
+            "{e}"
+        );
 
         assert!(dimensions(file(b"II*\0\xff\xff\0\0").path()).is_err());
         assert!(dimensions(file(&[0xFF, 0xD8, 0xFF]).path()).is_err());

@@ -286,3 +286,37 @@ fn a_second_server_on_the_same_data_folder_refuses_to_start() {
         assert_eq!(job["attempts"], 1, "{job}");
     }
 }
+
+#[test]
+fn a_queued_frame_over_a_lowered_size_limit_fails_when_its_worker_opens_it() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let big = big_frame(dir.path(), "big_0.jpg");
+    let data = dir.path().join("d");
+    let mut server = Server::start(&data, &["--workers", "1"]);
+    let mut upload: Vec<&Path> = vec![big.as_path()];
+    upload.extend(frames.iter().map(|p| p.as_path()));
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
+    assert_eq!(r.status(), 201);
+    let flight: Value = r.json().unwrap();
+    let id = flight["flight"]["id"].as_str().unwrap().to_string();
+    let big_job = job_id(&server, &id, "big_0.jpg");
+    wait_until("the big frame's worker", || {
+        !server.worker_pids(&big_job).is_empty()
+    });
+    server.kill9();
+
+    // Restarted with a limit under the queued 48 MP frame: the size the
+    // worker's decoder opens is checked before any pixel is read.
+    let server = Server::start(&data, &["--workers", "1", "--max-frame-mp", "40"]);
+    let done = server.wait_flight(&id);
+    assert_eq!(done["jobs"]["succeeded"], 3, "{done}");
+    let jobs = jobs_of(&server, &id);
+    let big = job_named(&jobs, "big_0.jpg");
+    assert_eq!(big["error"]["code"], "frame_too_large", "{big}");
+    let message = big["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("opens as 8000 x 6000 pixels (48 MP)") && message.contains("40 MP"),
+        "{message}"
+    );
+}

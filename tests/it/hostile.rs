@@ -38,6 +38,14 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
     std::fs::write(d.join("notes.jpg"), b"field notes: GCP 4 moved").unwrap();
     std::fs::write(d.join("bomb.png"), bomb()).unwrap();
     std::fs::write(d.join("corrupt.tif"), b"II*\0\xff\xff\xff\x0fjunk").unwrap();
+    // Two ImageWidth entries, 30000 then 100 (libtiff reads the first).
+    let mut twice = b"II*\0\x08\0\0\0".to_vec();
+    twice.extend_from_slice(&3u16.to_le_bytes());
+    twice.extend_from_slice(&[0, 1, 4, 0, 1, 0, 0, 0, 0x30, 0x75, 0, 0]);
+    twice.extend_from_slice(&[1, 1, 4, 0, 1, 0, 0, 0, 0x30, 0x75, 0, 0]);
+    twice.extend_from_slice(&[0, 1, 3, 0, 1, 0, 0, 0, 100, 0, 0, 0]);
+    twice.extend_from_slice(&[0; 4]);
+    std::fs::write(d.join("two_widths.tif"), &twice).unwrap();
     std::fs::write(
         d.join("vrt.tif"),
         b"<VRTDataset rasterXSize=\"1\"></VRTDataset>",
@@ -63,6 +71,7 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
         "notes.jpg",
         "bomb.png",
         "corrupt.tif",
+        "two_widths.tif",
         "vrt.tif",
         "png_named.tif",
         "five_band.tif",
@@ -93,6 +102,17 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
         .unwrap()
         .to_string();
     assert!(message.contains("100000 x 100000"), "{message}");
+    let twice = at_submission("two_widths.tif");
+    assert_eq!(
+        (&twice["state"], &twice["error"]["code"]),
+        (&"failed".into(), &"unreadable_frame".into()),
+        "{twice}"
+    );
+    let message = twice["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("two ImageWidth entries (30000 and 100)"),
+        "{message}"
+    );
 
     let id = v["flight"]["id"].as_str().unwrap();
     server.wait_flight(id);
@@ -115,6 +135,7 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
         ("notes.jpg", "failed", "not_an_image"),
         ("bomb.png", "failed", "frame_too_large"),
         ("corrupt.tif", "failed", "unreadable_frame"),
+        ("two_widths.tif", "failed", "unreadable_frame"),
         ("vrt.tif", "failed", "not_an_image"),
         ("png_named.tif", "succeeded", ""),
         ("five_band.tif", "succeeded", ""),
@@ -130,6 +151,13 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
         .find(|j| j["image"] == "bomb.png")
         .unwrap();
     assert_eq!(bomb_job["attempts"], 0, "{bomb_job}");
+    let twice = jobs["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|j| j["image"] == "two_widths.tif")
+        .unwrap();
+    assert_eq!(twice["attempts"], 0, "{twice}");
     // The good frames' results are whole and the server is up.
     let csv = server.get_text(&format!("/v1/flights/{id}/results.csv"));
     let good: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();

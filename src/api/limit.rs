@@ -1,17 +1,13 @@
-//! Per-client request rates: a token bucket per client (its bearer key
-//! when it sends one, else its IP address) refilled at the configured rate
+//! Per-client request rates: a token bucket per client (its verified key,
+//! else its IP address; see `api::gate`) refilled at the configured rate
 //! per minute, with a minute's worth of burst. Over the limit, a 429
 //! problem with `Retry-After`. Health and metrics routes are not limited.
 
 use std::collections::HashMap;
-use std::net::SocketAddr;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::Instant;
 
-use axum::extract::{ConnectInfo, Request, State};
 use axum::http::{header, StatusCode};
-use axum::middleware::Next;
-use axum::response::Response;
 
 use super::error::ApiError;
 
@@ -37,7 +33,7 @@ impl RateLimiter {
     }
 
     /// Takes a token for `client`; `Err(seconds)` until the next one.
-    fn take(&self, client: &str, now: Instant) -> Result<(), u64> {
+    fn take_at(&self, client: &str, now: Instant) -> Result<(), u64> {
         let mut buckets = self.buckets.lock().expect("rate limiter lock");
         if buckets.len() > MAX_CLIENTS {
             let per_second = self.per_minute / 60.0;
@@ -61,45 +57,22 @@ impl RateLimiter {
 }
 
 /// Routes never limited: probes and scrapes.
-const UNLIMITED: [&str; 3] = ["/livez", "/readyz", "/metrics"];
+pub const UNLIMITED: [&str; 3] = ["/livez", "/readyz", "/metrics"];
 
-pub async fn limit_rate(
-    State(limiter): State<Arc<RateLimiter>>,
-    req: Request,
-    next: Next,
-) -> Result<Response, ApiError> {
-    if UNLIMITED.contains(&req.uri().path()) {
-        return Ok(next.run(req).await);
-    }
-    let client = match req.headers().get(header::AUTHORIZATION) {
-        Some(key) => format!("key:{:x}", md5::Md5::digest_bytes(key.as_bytes())),
-        None => req
-            .extensions()
-            .get::<ConnectInfo<SocketAddr>>()
-            .map_or_else(|| "ip:unknown".to_string(), |c| format!("ip:{}", c.0.ip())),
-    };
-    match limiter.take(&client, Instant::now()) {
-        Ok(()) => Ok(next.run(req).await),
-        Err(wait) => Err(ApiError::new(
-            StatusCode::TOO_MANY_REQUESTS,
-            "rate_limited",
-            format!(
-                "more than {} requests a minute from this client; retry in {wait} s",
-                limiter.per_minute
-            ),
-        )
-        .with_header(header::RETRY_AFTER, &wait.to_string())),
-    }
-}
-
-trait DigestBytes {
-    fn digest_bytes(bytes: &[u8]) -> u128;
-}
-
-impl DigestBytes for md5::Md5 {
-    fn digest_bytes(bytes: &[u8]) -> u128 {
-        use md5::Digest;
-        u128::from_be_bytes(md5::Md5::digest(bytes).into())
+impl RateLimiter {
+    /// Takes a token from `client`'s bucket, or the 429 to answer.
+    pub fn take(&self, client: &str) -> Result<(), ApiError> {
+        self.take_at(client, Instant::now()).map_err(|wait| {
+            ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                "rate_limited",
+                format!(
+                    "more than {} requests a minute from this client; retry in {wait} s",
+                    self.per_minute
+                ),
+            )
+            .with_header(header::RETRY_AFTER, &wait.to_string())
+        })
     }
 }
 
@@ -113,10 +86,10 @@ mod tests {
         let limiter = RateLimiter::new(60);
         let t0 = Instant::now();
         for _ in 0..60 {
-            assert_eq!(limiter.take("a", t0), Ok(()));
+            assert_eq!(limiter.take_at("a", t0), Ok(()));
         }
-        assert_eq!(limiter.take("a", t0), Err(1));
-        assert_eq!(limiter.take("b", t0), Ok(()), "clients are separate");
-        assert_eq!(limiter.take("a", t0 + Duration::from_secs(2)), Ok(()));
+        assert_eq!(limiter.take_at("a", t0), Err(1));
+        assert_eq!(limiter.take_at("b", t0), Ok(()), "clients are separate");
+        assert_eq!(limiter.take_at("a", t0 + Duration::from_secs(2)), Ok(()));
     }
 }

@@ -18,11 +18,12 @@ pub mod upload;
 pub mod views;
 pub mod watch;
 
+use std::net::SocketAddr;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Instant;
 
-use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
+use axum::extract::{ConnectInfo, DefaultBodyLimit, MatchedPath, Request, State};
 use axum::http::{header, HeaderName, HeaderValue, Method, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::Response;
@@ -145,7 +146,6 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
 /// The whole application.
 pub fn router(state: AppState, config: &HttpConfig) -> Router {
     let (routes, spec) = api_routes().split_for_parts();
-    let keys = Arc::new(config.api_keys.clone());
     let request_id = HeaderName::from_static("x-request-id");
     let mut app = routes
         .merge(SwaggerUi::new("/docs").url("/openapi.json", spec))
@@ -153,10 +153,12 @@ pub fn router(state: AppState, config: &HttpConfig) -> Router {
         .method_not_allowed_fallback(error::method_not_allowed)
         // Uploads enforce their own limits while streaming (see upload).
         .layer(DefaultBodyLimit::disable())
-        .layer(middleware::from_fn_with_state(keys, require_api_key))
         .layer(middleware::from_fn_with_state(
-            Arc::new(limit::RateLimiter::new(config.rate_limit_per_minute)),
-            limit_or_pass,
+            Arc::new(Gate {
+                keys: config.api_keys.clone(),
+                limiter: limit::RateLimiter::new(config.rate_limit_per_minute),
+            }),
+            gate,
         ))
         .layer(middleware::from_fn_with_state(state.clone(), record_metrics))
         .layer(
@@ -217,25 +219,51 @@ fn cors_layer(origins: &[String]) -> Option<CorsLayer> {
 /// Routes open without a key: probes must work without secrets.
 const OPEN_PATHS: &[&str] = &["/livez", "/readyz"];
 
-async fn limit_or_pass(
-    State(limiter): State<Arc<limit::RateLimiter>>,
-    req: Request,
-    next: Next,
-) -> Result<Response, ApiError> {
-    if limiter.is_off() {
-        return Ok(next.run(req).await);
-    }
-    limit::limit_rate(State(limiter), req, next).await
+/// Who may call, and how often.
+struct Gate {
+    /// Bearer keys; empty means no authentication.
+    keys: Vec<String>,
+    limiter: limit::RateLimiter,
 }
 
-async fn require_api_key(
-    State(keys): State<Arc<Vec<String>>>,
+/// Authentication, then the rate limit of the client that request is
+/// from: its verified key's allowance, or, with no key (none configured,
+/// or a wrong one), its address's. A header's spelling names no one, so
+/// varying it buys nothing, and wrong keys spend the guessing address's
+/// allowance (401s until it is spent, then 429s).
+async fn gate(
+    State(gate): State<Arc<Gate>>,
     req: Request,
     next: Next,
 ) -> Result<Response, ApiError> {
-    if keys.is_empty() || OPEN_PATHS.contains(&req.uri().path()) {
-        return Ok(next.run(req).await);
+    let path = req.uri().path();
+    let limited = !gate.limiter.is_off() && !limit::UNLIMITED.contains(&path);
+    let open = gate.keys.is_empty() || OPEN_PATHS.contains(&path);
+    let address = req
+        .extensions()
+        .get::<ConnectInfo<SocketAddr>>()
+        .map_or_else(|| "ip:unknown".to_string(), |c| format!("ip:{}", c.0.ip()));
+    let client = if open {
+        address
+    } else {
+        match verify_key(&gate.keys, &req) {
+            Ok(k) => format!("key:{k}"),
+            Err(unauthorized) => {
+                if limited {
+                    gate.limiter.take(&address)?;
+                }
+                return Err(unauthorized);
+            }
+        }
+    };
+    if limited {
+        gate.limiter.take(&client)?;
     }
+    Ok(next.run(req).await)
+}
+
+/// The index of the configured key the request's bearer token is.
+fn verify_key(keys: &[String], req: &Request) -> Result<usize, ApiError> {
     let given = req
         .headers()
         .get(header::AUTHORIZATION)
@@ -246,19 +274,19 @@ async fn require_api_key(
         ApiError::new(StatusCode::UNAUTHORIZED, "unauthorized", detail)
             .with_header(header::WWW_AUTHENTICATE, "Bearer realm=\"gcp-tagger\"")
     };
-    match given {
-        None => Err(unauthorized(
+    let Some(given) = given else {
+        return Err(unauthorized(
             "this route needs Authorization: Bearer <api key>",
-        )),
-        Some(key)
-            if keys
-                .iter()
-                .any(|k| constant_time_eq(k.as_bytes(), key.as_bytes())) =>
-        {
-            Ok(next.run(req).await)
-        }
-        Some(_) => Err(unauthorized("the API key is not valid")),
-    }
+        ));
+    };
+    // Every key is compared, so timing does not tell which one matched.
+    keys.iter()
+        .enumerate()
+        .fold(None, |found, (i, k)| {
+            let same = constant_time_eq(k.as_bytes(), given.as_bytes());
+            found.or(same.then_some(i))
+        })
+        .ok_or_else(|| unauthorized("the API key is not valid"))
 }
 
 /// Compares without an early exit, so timing does not reveal how much of a

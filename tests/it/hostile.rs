@@ -214,14 +214,62 @@ fn clients_over_their_rate_get_429_and_probes_are_never_limited() {
     assert!((1..=60).contains(&retry), "{retry}");
     problem(r, 429, "rate_limited");
     assert_eq!(server.get("/livez").status(), 200);
-    // Another client (another key) has its own bucket.
-    let other = server
+    // Without keys an Authorization header names no one: varying it
+    // gives no new allowance.
+    let varied = server
         .client
         .get(server.url("/v1/flights"))
         .header("Authorization", "Bearer another-client-key")
         .send()
         .unwrap();
-    assert_eq!(other.status(), 200);
+    problem(varied, 429, "rate_limited");
+}
+
+#[test]
+fn the_rate_limit_counts_verified_keys_and_addresses_not_header_spellings() {
+    let dir = tempfile::tempdir().unwrap();
+    let (k1, k2) = ("first-client-key-0123", "second-client-key-0123");
+    let server = Server::start(
+        &dir.path().join("d"),
+        &[
+            "--rate-limit-per-minute",
+            "5",
+            "--api-key",
+            k1,
+            "--api-key",
+            k2,
+        ],
+    );
+    let get = |auth: &str| {
+        server
+            .client
+            .get(server.url("/v1/flights"))
+            .header("Authorization", auth)
+            .send()
+            .unwrap()
+    };
+    // One key, ten spellings of its header: one allowance of five.
+    let statuses: Vec<u16> = (1..=10)
+        .map(|spaces| {
+            get(&format!("Bearer{}{k1}", " ".repeat(spaces)))
+                .status()
+                .as_u16()
+        })
+        .collect();
+    assert_eq!(statuses, [200, 200, 200, 200, 200, 429, 429, 429, 429, 429]);
+    // Another verified key is another client.
+    assert_eq!(get(&format!("Bearer {k2}")).status(), 200);
+    // Guesses are 401 and spend the address's allowance: no endless
+    // guessing from one address.
+    let guesses: Vec<u16> = (0..6)
+        .map(|i| {
+            get(&format!("Bearer wrong-guess-{i:010}"))
+                .status()
+                .as_u16()
+        })
+        .collect();
+    assert_eq!(guesses, [401, 401, 401, 401, 401, 429]);
+    assert_eq!(server.get("/livez").status(), 200);
 }
 
 #[test]

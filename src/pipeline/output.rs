@@ -82,7 +82,7 @@ pub fn to_csv(frames: &[FrameResult], crs: &TargetCrs) -> String {
             let _ = writeln!(
                 out,
                 "{},{},{},{:.p$},{:.p$},{},{},{},{:.2},{:.3},{},{},{},{},{:.3},{}",
-                csv_field(&frame.image),
+                csv_text(&frame.image),
                 d.marker_type,
                 opt(d.marker_id),
                 d.center.0,
@@ -117,6 +117,18 @@ fn csv_field(s: &str) -> String {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {
         s.to_string()
+    }
+}
+
+/// A client-chosen text (a frame's or a GCP's name) as a CSV field: one
+/// that starts like a formula (`=`, `+`, `-`, `@`, tab or carriage return)
+/// gets a leading `'` so a spreadsheet shows it instead of running it
+/// (OWASP, "CSV Injection"), then quoted as any field.
+pub fn csv_text(s: &str) -> String {
+    if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
+        csv_field(&format!("'{s}"))
+    } else {
+        csv_field(s)
     }
 }
 
@@ -191,4 +203,22 @@ fn feature(out: &mut String, image: &str, t: &Target, crs: &TargetCrs) {
         "{{\"type\":\"Feature\",\"geometry\":{geometry},\"properties\":{{{}}}}}",
         props.join(",")
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_that_start_like_formulas_are_shown_not_run() {
+        assert_eq!(csv_text("DJI_0001.JPG"), "DJI_0001.JPG");
+        assert_eq!(
+            csv_text("=HYPERLINK(\"http://x\",\"a\").jpg"),
+            "\"'=HYPERLINK(\"\"http://x\"\",\"\"a\"\").jpg\""
+        );
+        assert_eq!(csv_text("+1.jpg"), "'+1.jpg");
+        assert_eq!(csv_text("-2+3.jpg"), "'-2+3.jpg");
+        assert_eq!(csv_text("@SUM(A1).jpg"), "'@SUM(A1).jpg");
+        assert_eq!(csv_text("a,b.jpg"), "\"a,b.jpg\"");
+    }
 }

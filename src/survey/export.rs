@@ -12,6 +12,7 @@ use std::fmt::Write;
 use serde_json::json;
 
 use crate::pipeline::georef::{Transformer, WGS84};
+use crate::pipeline::output::csv_text;
 
 use super::matching::{point_reports, Matched, Observation, PointReport};
 use super::{Role, Survey};
@@ -208,12 +209,12 @@ pub fn observations_csv(survey: &Survey, matched: &Matched) -> String {
             o.px,
             format!(
                 "{},{},{},{:.3},{:.3},{},{role},{},{:.3},matched,",
-                csv_field(&o.image),
+                csv_text(&o.image),
                 o.marker_type,
                 id(o.marker_id),
                 o.px,
                 o.py,
-                csv_field(&o.gcp_name),
+                csv_text(&o.gcp_name),
                 num(o.deviation_px),
                 o.match_confidence
             ),
@@ -226,15 +227,15 @@ pub fn observations_csv(survey: &Survey, matched: &Matched) -> String {
             u.px,
             format!(
                 "{},{},{},{:.3},{:.3},{},,{},,{},{}",
-                csv_field(&u.image),
+                csv_text(&u.image),
                 u.marker_type,
                 id(u.marker_id),
                 u.px,
                 u.py,
-                csv_field(u.gcp_name.as_deref().unwrap_or("")),
+                csv_text(u.gcp_name.as_deref().unwrap_or("")),
                 num(u.deviation_px),
                 u.code,
-                csv_field(&u.reason)
+                csv_text(&u.reason)
             ),
         ));
     }
@@ -251,14 +252,6 @@ pub fn observations_csv(survey: &Survey, matched: &Matched) -> String {
         out.push('\n');
     }
     out
-}
-
-fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
 }
 
 /// Rounds pixel figures to 0.001 px and confidences to 0.0001 throughout a

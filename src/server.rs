@@ -117,7 +117,10 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let _ = std::io::stdout().flush();
     ready.store(true, Ordering::SeqCst);
 
-    let mut drained = shutdown_rx.clone();
+    // The listener stays open through the grace period, so probes see
+    // /readyz turn 503 and clients get a 503 for new work, not a refused
+    // connection; it closes once the running jobs have ended.
+    let (http_stop_tx, mut drained) = tokio::sync::watch::channel(false);
     let mut server = tokio::spawn(
         axum::serve(
             listener,
@@ -153,6 +156,7 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
         );
         pool.abort_running();
     }
+    let _ = http_stop_tx.send(true);
     // Requests still open (a slow upload) get what is left of the grace.
     let rest = deadline
         .saturating_duration_since(Instant::now())

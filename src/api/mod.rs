@@ -4,6 +4,7 @@
 //! Handlers parse, call the store or the upload spool, and map the answer;
 //! the pipeline runs only on the worker pool.
 
+pub mod drain;
 pub mod error;
 pub mod extract;
 pub mod flights;
@@ -153,6 +154,7 @@ pub fn router(state: AppState, config: &HttpConfig) -> Router {
         .method_not_allowed_fallback(error::method_not_allowed)
         // Uploads enforce their own limits while streaming (see upload).
         .layer(DefaultBodyLimit::disable())
+        .layer(middleware::from_fn_with_state(state.clone(), refuse_new_work))
         .layer(middleware::from_fn_with_state(
             Arc::new(Gate {
                 keys: config.api_keys.clone(),
@@ -161,6 +163,8 @@ pub fn router(state: AppState, config: &HttpConfig) -> Router {
             gate,
         ))
         .layer(middleware::from_fn_with_state(state.clone(), record_metrics))
+        // Outside auth and limits, so their refusals are drained too.
+        .layer(middleware::from_fn(drain::drain_refused))
         .layer(
             TraceLayer::new_for_http().make_span_with(|req: &Request| {
                 let id = req
@@ -218,6 +222,26 @@ fn cors_layer(origins: &[String]) -> Option<CorsLayer> {
 
 /// Routes open without a key: probes must work without secrets.
 const OPEN_PATHS: &[&str] = &["/livez", "/readyz"];
+
+/// While the server shuts down (the listener stays open through the
+/// grace period), requests that would start or change work get a 503 with
+/// `Retry-After`; reads, long polls' answers and probes go on.
+async fn refuse_new_work(
+    State(state): State<AppState>,
+    req: Request,
+    next: Next,
+) -> Result<Response, ApiError> {
+    let reads = [Method::GET, Method::HEAD, Method::OPTIONS];
+    if *state.shutdown.borrow() && !reads.contains(req.method()) {
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "shutting_down",
+            "the service is shutting down; send this again to its next start or another replica",
+        )
+        .with_header(header::RETRY_AFTER, "5"));
+    }
+    Ok(next.run(req).await)
+}
 
 /// Who may call, and how often.
 struct Gate {

@@ -320,3 +320,64 @@ fn a_queued_frame_over_a_lowered_size_limit_fails_when_its_worker_opens_it() {
         "{message}"
     );
 }
+
+#[test]
+fn during_the_shutdown_grace_readiness_is_503_and_new_work_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    // Noise: about ten seconds of candidates for one worker, so the job
+    // outlasts the checks below.
+    let (w, h) = (8000, 6000);
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    let noise = GreyImage {
+        width: w,
+        height: h,
+        data: (0..w * h)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 56) as f32
+            })
+            .collect(),
+    };
+    let big = dir.path().join("noise.jpg");
+    write_image(&big, &noise, SampleFormat::Jpeg, None).unwrap();
+    let data = dir.path().join("d");
+    let mut server = Server::start(&data, &["--workers", "1", "--shutdown-grace-secs", "60"]);
+    let r = server.post_files(
+        &format!("/v1/flights?crs={CRS}&marker_types=apriltag,crosshair"),
+        &[big.as_path()],
+    );
+    assert_eq!(r.status(), 201);
+    let flight: Value = r.json().unwrap();
+    let id = flight["flight"]["id"].as_str().unwrap().to_string();
+    let big_job = job_id(&server, &id, "noise.jpg");
+    wait_until("the frame's worker", || {
+        !server.worker_pids(&big_job).is_empty()
+    });
+    assert_eq!(server.get("/readyz").status(), 200);
+
+    // SIGTERM while the job runs: the listener stays for the grace.
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe { libc::kill(server.pid() as i32, libc::SIGTERM) };
+    wait_until("readiness to turn 503", || {
+        server.get("/readyz").status() == 503
+    });
+    assert_eq!(server.get("/livez").status(), 200);
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &[big.as_path()]);
+    let v = crate::server::problem(r, 503, "shutting_down");
+    assert!(
+        v["detail"].as_str().unwrap().contains("shutting down"),
+        "{v}"
+    );
+    // Reads go on: the running job is still there to look at.
+    let job = server.get_json(&format!("/v1/jobs/{big_job}"));
+    assert_eq!(job["state"], "running", "{job}");
+    // The job ends within the grace and the server with it.
+    assert!(server.stop().success());
+    assert!(
+        server.log_text().contains("stopped"),
+        "{}",
+        server.log_text()
+    );
+}

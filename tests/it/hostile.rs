@@ -2,6 +2,7 @@
 //! with a clear code while the good frames and the server go on; a
 //! decompression bomb is refused from its header at submission.
 
+use std::io::{BufRead, Read, Write};
 use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
@@ -321,4 +322,48 @@ fn a_flight_cannot_grow_past_its_frame_limit() {
     let r = server.post_files(&format!("/v1/flights/{id}/frames"), &[frames[2].as_path()]);
     let v = problem(r, 413, "too_many_frames");
     assert!(v["detail"].as_str().unwrap().contains("3 frames"), "{v}");
+}
+
+#[test]
+fn a_request_over_the_size_limit_gets_its_413_even_if_the_client_sends_it_all() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(
+        &dir.path().join("d"),
+        &["--max-request-mb", "1", "--max-frame-mb", "1"],
+    );
+    // Declared and written in full before the answer is read, as Python
+    // requests does: 8 MiB, twice on one connection.
+    let addr = server.base.trim_start_matches("http://").to_string();
+    let mut conn = std::net::TcpStream::connect(&addr).unwrap();
+    let body = vec![0xFFu8; 8 << 20];
+    let mut reader = std::io::BufReader::new(conn.try_clone().unwrap());
+    for _ in 0..2 {
+        let head = format!(
+            "POST /v1/jobs?name=big.jpg HTTP/1.1\r\nHost: {addr}\r\nContent-Length: {}\r\n\r\n",
+            body.len()
+        );
+        conn.write_all(head.as_bytes()).unwrap();
+        conn.write_all(&body)
+            .expect("the whole body taken, not a broken pipe");
+        let mut status = String::new();
+        reader.read_line(&mut status).unwrap();
+        assert!(status.starts_with("HTTP/1.1 413"), "{status:?}");
+        let mut length = 0;
+        loop {
+            let mut line = String::new();
+            reader.read_line(&mut line).unwrap();
+            if line == "\r\n" {
+                break;
+            }
+            if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
+                length = v.trim().parse().unwrap();
+            }
+        }
+        let mut doc = vec![0u8; length];
+        reader.read_exact(&mut doc).unwrap();
+        let v: Value = serde_json::from_slice(&doc).unwrap();
+        assert_eq!(v["code"], "request_too_large", "{v}");
+        assert!(v["detail"].as_str().unwrap().contains("1 MiB"), "{v}");
+    }
+    assert_eq!(server.get("/livez").status(), 200);
 }

@@ -141,12 +141,82 @@ fn api_routes() -> OpenApiRouter<AppState> {
 
 /// The OpenAPI document, as committed in `openapi/openapi.json`.
 pub fn openapi() -> utoipa::openapi::OpenApi {
-    api_routes().split_for_parts().1
+    let mut spec = api_routes().split_for_parts().1;
+    add_common_responses(&mut spec);
+    spec
+}
+
+/// The answers every route may give from the layers around it (see
+/// [`router`]): 401 when keys are configured, 429 over the rate limit, 503
+/// for new work while shutting down, 507 for uploads when the disk is
+/// short. Probes are open and unlimited.
+fn add_common_responses(spec: &mut utoipa::openapi::OpenApi) {
+    use utoipa::openapi::{ContentBuilder, Ref, RefOr, ResponseBuilder};
+    let problem = |description: &str| {
+        RefOr::T(
+            ResponseBuilder::new()
+                .description(description)
+                .content(
+                    "application/problem+json",
+                    ContentBuilder::new()
+                        .schema(Some(Ref::from_schema_name("Problem")))
+                        .build(),
+                )
+                .build(),
+        )
+    };
+    for (path, item) in spec.paths.paths.iter_mut() {
+        if OPEN_PATHS.contains(&path.as_str()) {
+            continue;
+        }
+        let uploads = matches!(
+            path.as_str(),
+            "/v1/jobs" | "/v1/flights" | "/v1/flights/{id}/frames"
+        );
+        let operations = [
+            (&mut item.get, false),
+            (&mut item.put, true),
+            (&mut item.post, true),
+            (&mut item.delete, true),
+        ];
+        for (op, changes) in operations {
+            let Some(op) = op.as_mut() else { continue };
+            let mut add = |code: &str, description: &str| {
+                op.responses
+                    .responses
+                    .entry(code.to_string())
+                    .or_insert_with(|| problem(description));
+            };
+            add(
+                "401",
+                "No valid API key (`unauthorized`; only when the server has keys)",
+            );
+            if !limit::UNLIMITED.contains(&path.as_str()) {
+                add(
+                    "429",
+                    "Over the client's requests per minute (`rate_limited`, with Retry-After)",
+                );
+            }
+            if changes {
+                add(
+                    "503",
+                    "The service is shutting down (`shutting_down`, with Retry-After)",
+                );
+            }
+            if changes && uploads {
+                add(
+                    "507",
+                    "Too little free disk for the upload (`insufficient_storage`)",
+                );
+            }
+        }
+    }
 }
 
 /// The whole application.
 pub fn router(state: AppState, config: &HttpConfig) -> Router {
-    let (routes, spec) = api_routes().split_for_parts();
+    let (routes, mut spec) = api_routes().split_for_parts();
+    add_common_responses(&mut spec);
     let request_id = HeaderName::from_static("x-request-id");
     let mut app = routes
         .merge(SwaggerUi::new("/docs").url("/openapi.json", spec))

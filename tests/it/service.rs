@@ -619,6 +619,13 @@ fn the_committed_openapi_document_is_current() {
         "openapi/openapi.json is stale: regenerate it with \
          `cargo run -- openapi > openapi/openapi.json`"
     );
+    // The layers' answers are documented with the routes'.
+    let spec: Value = serde_json::from_str(&current).unwrap();
+    let upload = &spec["paths"]["/v1/jobs"]["post"]["responses"];
+    for code in ["401", "413", "429", "503", "507"] {
+        assert!(upload[code].is_object(), "POST /v1/jobs lacks {code}");
+    }
+    assert!(spec["paths"]["/livez"]["get"]["responses"]["401"].is_null());
 }
 
 /// `gcp-tagger probe`, the container's HEALTHCHECK: 0 when the route

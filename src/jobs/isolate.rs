@@ -351,6 +351,9 @@ fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
                     result.width,
                     result.height
                 )),
+                Err(e) if is_disk_full(&e) => {
+                    fail(NO_SPACE, &format!("cannot store the result: {e}"))
+                }
                 Err(e) => fail("internal", &format!("cannot store the result: {e}")),
             }
         }
@@ -403,12 +406,28 @@ fn unlimit_self() {
     set_soft_limit(libc::RLIMIT_CPU, u64::MAX);
 }
 
+/// Writes `bytes` to `path` through a `.part` file renamed when whole; a
+/// failed write leaves nothing behind.
 fn write_whole(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let tmp = path.with_extension("part");
-    std::fs::write(&tmp, bytes)?;
-    std::fs::File::open(&tmp)?.sync_all()?;
-    std::fs::rename(&tmp, path)
+    let written = std::fs::write(&tmp, bytes)
+        .and_then(|()| std::fs::File::open(&tmp)?.sync_all())
+        .and_then(|()| std::fs::rename(&tmp, path));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
 }
+
+/// Whether an I/O error is the disk (or the user's quota) being full: the
+/// server's condition, not the frame's.
+pub fn is_disk_full(e: &std::io::Error) -> bool {
+    matches!(e.raw_os_error(), Some(libc::ENOSPC) | Some(libc::EDQUOT))
+        || e.kind() == std::io::ErrorKind::StorageFull
+}
+
+/// The code a worker process reports when the disk is full.
+pub const NO_SPACE: &str = "no_space";
 
 #[cfg(test)]
 mod tests {

@@ -16,7 +16,7 @@ use crate::storage::header::PixelLimits;
 use crate::storage::DataDir;
 use crate::telemetry::{Metrics, OutcomeLabels};
 
-use super::isolate::{cpu_limit_secs, ChildLine, Heard, JobChild, JobOrder};
+use super::isolate::{cpu_limit_secs, ChildLine, Heard, JobChild, JobOrder, NO_SPACE};
 use super::model::{JobError, JobRecord};
 use super::store::{Claim, Outcome, Store};
 
@@ -28,6 +28,48 @@ const POLL: Duration = Duration::from_millis(100);
 
 /// Workers a frame may kill before its job fails instead of being retried.
 pub const MAX_ATTEMPTS: u32 = 3;
+
+/// Free space on the data folder's disk below which workers start no job:
+/// a job needs room for its result file and the store's log (kilobytes to
+/// a few MiB). Uploads stop much earlier (`--min-free-disk-mb`).
+const MIN_FREE_FOR_JOBS: u64 = 32 * MIB;
+
+/// How often a worker looks at the disk while it is short.
+const DISK_WAIT: Duration = Duration::from_secs(1);
+
+/// Retries of an operation that fails for the server's own reasons (a
+/// full disk, a store that cannot write): waits double from 0.25 s to
+/// 30 s; the failure is logged when it starts and then once a minute, and
+/// its end once.
+#[derive(Default)]
+struct Backoff {
+    failures: u32,
+    logged: Option<Instant>,
+}
+
+impl Backoff {
+    /// Records a failure; returns how long to wait before the next try.
+    fn failed(&mut self, what: &str, error: &dyn std::fmt::Display) -> Duration {
+        self.failures += 1;
+        if self
+            .logged
+            .is_none_or(|at| at.elapsed() >= Duration::from_secs(60))
+        {
+            tracing::error!(%error, failures = self.failures, "{what}");
+            self.logged = Some(Instant::now());
+        }
+        let wait = IDLE_WAIT.saturating_mul(1 << self.failures.min(7));
+        wait.min(Duration::from_secs(30))
+    }
+
+    /// Records a success after failures.
+    fn recovered(&mut self, what: &str) {
+        if self.failures > 0 {
+            tracing::info!(failures = self.failures, "{what}");
+        }
+        *self = Backoff::default();
+    }
+}
 
 /// Memory a worker process may use beyond twice its frame's estimate.
 const CHILD_HEADROOM_BYTES: u64 = 256 * MIB;
@@ -158,18 +200,55 @@ struct Worker {
 
 impl Worker {
     fn run(mut self) {
+        let mut claims = Backoff::default();
         loop {
+            if !self.wait_for_disk() {
+                return;
+            }
             let claim = match self.store.claim_next(&self.stop_claiming, IDLE_WAIT) {
-                Ok(Some(claim)) => claim,
+                Ok(Some(claim)) => {
+                    claims.recovered("jobs can be claimed again");
+                    claim
+                }
                 Ok(None) if self.stop_claiming.load(Ordering::SeqCst) => return,
                 Ok(None) => continue,
                 Err(e) => {
-                    tracing::error!(error = %e, "cannot claim a job");
-                    std::thread::sleep(IDLE_WAIT);
+                    std::thread::sleep(claims.failed("cannot claim a job", &e));
                     continue;
                 }
             };
             self.run_claim(claim);
+        }
+    }
+
+    /// Waits while the data folder's disk has less than
+    /// [`MIN_FREE_FOR_JOBS`] free (a job started then could not record its
+    /// end); false when the pool stops meanwhile.
+    fn wait_for_disk(&self) -> bool {
+        let mut short = false;
+        loop {
+            if self.stop_claiming.load(Ordering::SeqCst) {
+                return false;
+            }
+            match self.data.free_bytes() {
+                Ok(free) if free < MIN_FREE_FOR_JOBS => {
+                    if !short {
+                        tracing::warn!(
+                            free_mib = free / MIB,
+                            "the data folder's disk is full: no job starts until space returns"
+                        );
+                        short = true;
+                    }
+                    std::thread::sleep(DISK_WAIT);
+                }
+                // Room, or no way to tell: the job's own writes will say.
+                _ => {
+                    if short {
+                        tracing::info!("disk space is back: jobs start again");
+                    }
+                    return true;
+                }
+            }
         }
     }
 
@@ -200,17 +279,45 @@ impl Worker {
         if matches!(outcome, Outcome::Succeeded { .. }) {
             self.metrics.megapixels.inc_by(megapixels);
         }
-        match self.store.finish(job.id, &outcome) {
+        match self.record_end(job.id, &outcome) {
             // A frame fetched from object storage is still there: the
             // local copy goes once the job has ended, so a long flight
             // does not fill the disk.
-            Ok(true) if job.source.is_some() && !matches!(outcome, Outcome::Interrupted) => {
+            Some(true) if job.source.is_some() && !matches!(outcome, Outcome::Interrupted) => {
                 self.data.remove_frame(job.id, &job.ext)
             }
-            Ok(true) => {}
+            Some(true) | None => {}
             // Deleted while it ran: drop what it wrote.
-            Ok(false) => self.data.remove_job_files(job.id, &job.ext),
-            Err(e) => tracing::error!(error = %e, "cannot record the job's end"),
+            Some(false) => self.data.remove_job_files(job.id, &job.ext),
+        }
+    }
+
+    /// Records a job's end, retrying while the store cannot write (a full
+    /// disk: the job must not stay `running` once space returns). When the
+    /// server stops meanwhile, the job is put back in the queue in memory
+    /// only (the store still says running, which the next start requeues),
+    /// so shutdown does not wait for it; None then.
+    fn record_end(&self, id: super::model::JobId, outcome: &Outcome) -> Option<bool> {
+        let mut tries = Backoff::default();
+        loop {
+            match self.store.finish(id, outcome) {
+                Ok(changed) => {
+                    tries.recovered("the job's end is recorded");
+                    return Some(changed);
+                }
+                Err(e) => {
+                    if self.stop_claiming.load(Ordering::SeqCst) {
+                        tracing::error!(error = %e, "cannot record the job's end while stopping: it runs again at the next start");
+                        self.store.release_unrecorded(id);
+                        return None;
+                    }
+                    let wait = tries.failed("cannot record the job's end; retrying", &e);
+                    let until = Instant::now() + wait;
+                    while Instant::now() < until && !self.stop_claiming.load(Ordering::SeqCst) {
+                        std::thread::sleep(POLL);
+                    }
+                }
+            }
         }
     }
 
@@ -316,6 +423,12 @@ impl Worker {
                 }
                 Some(ChildLine::Error { code, message }) => {
                     self.child = Some(child);
+                    if code == NO_SPACE {
+                        // The server's disk, not the frame: the job goes
+                        // back to the queue and waits for space.
+                        tracing::warn!(%message, "the disk is full: the job goes back to the queue");
+                        return (Outcome::Interrupted, 0.0);
+                    }
                     return fail(&code, message);
                 }
                 None => tracing::warn!(%line, "unexpected line from the worker process"),

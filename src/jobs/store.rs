@@ -667,6 +667,25 @@ impl Store {
 
     /// Records how a claimed job ended. A job deleted meanwhile stays deleted
     /// (the caller removes what it wrote when this returns `false`).
+    /// Puts a running job whose end could not be recorded back in the
+    /// queue, in memory only: the store still says running, which the next
+    /// start requeues. For a server that stops while its disk is full.
+    pub fn release_unrecorded(&self, id: JobId) {
+        let mut state = self.state();
+        state.cancel.remove(&id);
+        let Some(job) = state.jobs.get_mut(&id) else {
+            return;
+        };
+        if job.state != JobState::Running {
+            return;
+        }
+        job.state = JobState::Queued;
+        job.started_at = None;
+        let seq = job.seq;
+        state.queue.insert((seq, id));
+        state.running -= 1;
+    }
+
     pub fn finish(&self, id: JobId, outcome: &Outcome) -> Result<bool, StoreError> {
         let db = self.db();
         let finished = now_millis();

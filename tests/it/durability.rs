@@ -25,6 +25,29 @@ pub(crate) fn big_frame(dir: &Path, name: &str) -> PathBuf {
     path
 }
 
+/// An 8000x6000 JPEG of noise: with `marker_types=apriltag,crosshair`,
+/// about two seconds of candidates for one worker (a job that outlasts a
+/// few requests).
+fn noise_frame(dir: &Path) -> PathBuf {
+    let (w, h) = (8000, 6000);
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    let noise = GreyImage {
+        width: w,
+        height: h,
+        data: (0..w * h)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 56) as f32
+            })
+            .collect(),
+    };
+    let path = dir.join("noise.jpg");
+    write_image(&path, &noise, SampleFormat::Jpeg, None).unwrap();
+    path
+}
+
 fn jobs_of(server: &Server, flight: &str) -> Vec<Value> {
     server.get_json(&format!("/v1/flights/{flight}/jobs"))["items"]
         .as_array()
@@ -324,24 +347,7 @@ fn a_queued_frame_over_a_lowered_size_limit_fails_when_its_worker_opens_it() {
 #[test]
 fn during_the_shutdown_grace_readiness_is_503_and_new_work_is_refused() {
     let dir = tempfile::tempdir().unwrap();
-    // Noise: about ten seconds of candidates for one worker, so the job
-    // outlasts the checks below.
-    let (w, h) = (8000, 6000);
-    let mut x = 0x9E37_79B9_7F4A_7C15u64;
-    let noise = GreyImage {
-        width: w,
-        height: h,
-        data: (0..w * h)
-            .map(|_| {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                (x >> 56) as f32
-            })
-            .collect(),
-    };
-    let big = dir.path().join("noise.jpg");
-    write_image(&big, &noise, SampleFormat::Jpeg, None).unwrap();
+    let big = noise_frame(dir.path());
     let data = dir.path().join("d");
     let mut server = Server::start(&data, &["--workers", "1", "--shutdown-grace-secs", "60"]);
     let r = server.post_files(
@@ -380,4 +386,70 @@ fn during_the_shutdown_grace_readiness_is_503_and_new_work_is_refused() {
         "{}",
         server.log_text()
     );
+}
+
+#[test]
+fn a_full_disk_pauses_jobs_and_they_finish_once_space_returns() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let noise = noise_frame(dir.path());
+    let data = dir.path().join("d");
+    let server =
+        Server::start_on_small_disk(&data, 256, &["--workers", "1", "--min-free-disk-mb", "64"]);
+    let mut upload: Vec<&Path> = vec![noise.as_path()];
+    upload.extend(frames.iter().map(|p| p.as_path()));
+    let r = server.post_files(
+        &format!("/v1/flights?crs={CRS}&marker_types=apriltag,crosshair"),
+        &upload,
+    );
+    assert_eq!(r.status(), 201);
+    let flight: Value = r.json().unwrap();
+    let id = flight["flight"]["id"].as_str().unwrap().to_string();
+    let noise_job = job_id(&server, &id, "noise.jpg");
+    wait_until("the noise frame's worker", || {
+        !server.worker_pids(&noise_job).is_empty()
+    });
+
+    // Fill the server's disk to the last byte while the job runs.
+    let filler = server.own_path(&data.join("filler"));
+    {
+        let mut f = std::fs::File::create(&filler).unwrap();
+        let block = vec![0u8; 1 << 20];
+        let full = loop {
+            if let Err(e) = std::io::Write::write_all(&mut f, &block) {
+                break e;
+            }
+        };
+        assert_eq!(full.raw_os_error(), Some(libc::ENOSPC), "{full}");
+    }
+    // The job could not store its result: back in the queue, not failed,
+    // and nothing else starts while the disk is full.
+    wait_until("the job to go back to the queue", || {
+        server.log_text().contains("the disk is full")
+    });
+    std::thread::sleep(Duration::from_secs(3));
+    assert_eq!(server.get("/livez").status(), 200);
+    for job in jobs_of(&server, &id) {
+        assert_ne!(job["state"], "failed", "{job}");
+    }
+
+    // Space returns: every job finishes, without a restart.
+    std::fs::remove_file(&filler).unwrap();
+    let done = server.wait_flight(&id);
+    assert_eq!(done["jobs"]["succeeded"], 4, "{done}");
+    let jobs = jobs_of(&server, &id);
+    assert_eq!(job_named(&jobs, "noise.jpg")["attempts"], 2);
+    let results = server.own_path(&data.join("results"));
+    let parts: Vec<_> = std::fs::read_dir(&results)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().extension().is_some_and(|x| x == "part"))
+        .collect();
+    assert!(parts.is_empty(), "half-written results left: {parts:?}");
+    let csv = server.get_text(&format!("/v1/flights/{id}/results.csv"));
+    assert!(csv.lines().count() > 1, "{csv}");
+    // Logs back off: a handful of errors, not one per poll.
+    let log = server.log_text();
+    let errors = log.lines().filter(|l| l.contains("ERROR")).count();
+    assert!(errors <= 5, "{errors} error lines:\n{log}");
 }

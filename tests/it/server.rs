@@ -28,12 +28,41 @@ impl Server {
 
     /// Starts a server with extra flags and environment variables.
     pub fn start_env(data: &Path, extra: &[&str], env: &[(&str, &str)]) -> Server {
-        let log = data.with_extension("log");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
-            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"));
+        cmd.args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(data)
             .args(extra)
-            .envs(env.iter().copied())
+            .envs(env.iter().copied());
+        Server::spawn(cmd, data)
+    }
+
+    /// Starts a server whose data folder is a tmpfs of `mib` MiB, mounted
+    /// in a mount namespace of its own (`unshare -rm`: no privileges
+    /// needed, nothing mounted on the host). The test reaches the folder
+    /// as the server sees it through [`Server::own_path`].
+    pub fn start_on_small_disk(data: &Path, mib: u32, extra: &[&str]) -> Server {
+        std::fs::create_dir_all(data).unwrap();
+        let mut cmd = Command::new("unshare");
+        cmd.args(["-rm", "sh", "-c"])
+            .arg(format!(
+                "mount -t tmpfs -o size={mib}m tmpfs \"$0\" && exec \"$@\""
+            ))
+            .arg(data)
+            .arg(env!("CARGO_BIN_EXE_gcp-tagger"))
+            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+            .arg(data)
+            .args(extra);
+        Server::spawn(cmd, data)
+    }
+
+    /// `path` as the server process sees it (its own mount namespace).
+    pub fn own_path(&self, path: &Path) -> PathBuf {
+        PathBuf::from(format!("/proc/{}/root", self.pid())).join(path.strip_prefix("/").unwrap())
+    }
+
+    fn spawn(mut cmd: Command, data: &Path) -> Server {
+        let log = data.with_extension("log");
+        let mut child = cmd
             .env("GCP_TAGGER_LOG", "info")
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(&log).unwrap())

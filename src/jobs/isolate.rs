@@ -8,7 +8,7 @@
 //! frame's header, says how much memory it needs, and waits; the parent
 //! takes that share of the RAM budget and answers `go` with the limits; the
 //! process then caps itself for the job (soft RLIMIT_DATA at its current
-//! data size plus twice the estimate, soft RLIMIT_CPU from the frame's
+//! data size plus the reservation and headroom, soft RLIMIT_CPU from the frame's
 //! size), runs, and lifts the caps afterwards. It dies with the server (PR_SET_PDEATHSIG, set by the child:
 //! spawning goes through posix_spawn, never a bare fork, see
 //! [`JobChild::spawn`]). Protocol, one line each
@@ -308,6 +308,14 @@ pub fn child_main(args: RunJobArgs) -> ExitCode {
             Err(e) => fail("internal", &format!("bad job order: {e}")),
         }
         unlimit_self();
+        // Hand the job's freed heap back to the system: glibc keeps it
+        // otherwise (measured: a kept worker stayed at 197 MiB after an
+        // 8000x6000 frame, against the 104 MiB its idle state is counted
+        // at), and the next job's reservation would come on top of it.
+        // SAFETY: malloc_trim only releases free memory of this process.
+        unsafe {
+            libc::malloc_trim(0);
+        }
     }
 }
 

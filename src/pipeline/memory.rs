@@ -32,7 +32,9 @@ const DETECT_BYTES_PER_TILE_PIXEL: u64 = 12;
 const STRETCH_BYTES_PER_BAND: u64 = 4 * (1 << 20);
 
 /// Working set of one frame: the full-width strip, the chunk read buffer,
-/// the detector's per-tile buffers and, for wide samples, the stretch pass.
+/// the detector's per-tile buffers, for wide samples the stretch pass, and
+/// what the decoder holds for the file's layout (a progressive JPEG's
+/// coefficients, a compressed TIFF's whole strip).
 pub fn estimate_frame_bytes(header: &FrameHeader, tile_size: usize) -> u64 {
     let tile_h = tile_size.min(header.height) as u64;
     let tile_w = tile_size.min(header.width) as u64;
@@ -44,7 +46,7 @@ pub fn estimate_frame_bytes(header: &FrameHeader, tile_size: usize) -> u64 {
     } else {
         0
     };
-    strip + chunk + detect + stretch
+    strip + chunk + detect + stretch + header.decoder_bytes
 }
 
 /// The budget could not take a frame at all.

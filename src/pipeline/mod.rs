@@ -10,6 +10,7 @@ pub mod dedup;
 pub mod detect;
 pub mod frame;
 pub mod georef;
+pub mod layout;
 pub mod memory;
 pub mod output;
 pub mod raster;

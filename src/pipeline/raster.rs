@@ -80,6 +80,10 @@ pub struct FrameHeader {
     pub sample_bytes: usize,
     /// Natural block height of the file (1 for JPEG scanlines).
     pub block_rows: usize,
+    /// What the decoder holds beyond the rows read (see [`layout`]).
+    ///
+    /// [`layout`]: super::layout
+    pub decoder_bytes: u64,
     pub driver: String,
     pub georeference: Option<Georeference>,
     /// Why the frame has no georeference, when it has none.
@@ -164,6 +168,7 @@ pub fn open_frame(path: &Path) -> Result<RasterFrame, RasterError> {
         bands,
         sample_bytes: if kind == SampleKind::U8 { 1 } else { 4 },
         block_rows,
+        decoder_bytes: super::layout::decoder_bytes(&path),
         driver: dataset.driver().short_name(),
         georeference,
         georeference_note,

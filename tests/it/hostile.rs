@@ -367,3 +367,111 @@ fn a_request_over_the_size_limit_gets_its_413_even_if_the_client_sends_it_all() 
     }
     assert_eq!(server.get("/livez").status(), 200);
 }
+
+/// Runs gdal_translate with `args` from `src` to `dst`.
+fn translate(src: &Path, dst: &Path, args: &[&str]) {
+    let status = Command::new("gdal_translate")
+        .arg("-q")
+        .args(args)
+        .arg(src)
+        .arg(dst)
+        .status()
+        .unwrap();
+    assert!(status.success(), "gdal_translate {args:?}");
+}
+
+#[test]
+fn the_memory_limit_holds_for_the_whole_process_tree_whatever_the_encoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // 8000x6000 RGB in the layouts whose decoders hold the most: a
+    // progressive JPEG (every coefficient of the image), a single
+    // compressed TIFF strip (the whole image), against baseline and tiled.
+    let (w, h) = (8000, 6000);
+    // A ground's texture: waves and grain, each colour its own grain.
+    let mut x = 0x2545_F491_4F6C_DD1Du64;
+    let mut bands = Vec::new();
+    for (band, gain) in [("r", 1.0f32), ("g", 0.9), ("b", 0.8)] {
+        let grey = GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    let (u, v) = ((i % w) as f32, (i / w) as f32);
+                    gain * (128.0 + 60.0 * (u / 97.0).sin() * (v / 61.0).cos()) + (x >> 59) as f32
+                })
+                .collect(),
+        };
+        let path = d.join(format!("{band}.tif"));
+        write_image(&path, &grey, SampleFormat::GtiffRgb8, None).unwrap();
+        bands.push(path);
+    }
+    let src = d.join("rgb.vrt");
+    let status = Command::new("gdalbuildvrt")
+        .args(["-q", "-separate", "-b", "1"])
+        .arg(&src)
+        .args(&bands)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let rgb: [&str; 0] = [];
+    let frames = [
+        ("baseline.jpg", &["-of", "JPEG"][..]),
+        (
+            "progressive.jpg",
+            &["-of", "JPEG", "-co", "PROGRESSIVE=ON"][..],
+        ),
+        (
+            "one_strip.tif",
+            &["-co", "COMPRESS=DEFLATE", "-co", "BLOCKYSIZE=6000"][..],
+        ),
+        (
+            "one_strip_lzw.tif",
+            &["-co", "COMPRESS=LZW", "-co", "BLOCKYSIZE=6000"][..],
+        ),
+        (
+            "tiled.tif",
+            &["-co", "COMPRESS=DEFLATE", "-co", "TILED=YES"][..],
+        ),
+    ];
+    let paths: Vec<std::path::PathBuf> = frames
+        .iter()
+        .map(|(name, args)| {
+            let path = d.join(name);
+            translate(&src, &path, &[&rgb[..], args].concat());
+            path
+        })
+        .collect();
+
+    let server = Server::start(
+        &d.join("data"),
+        &["--max-ram-gb", "0.5", "--min-free-disk-mb", "1"],
+    );
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let peak = std::thread::scope(|s| {
+        let sampler = s.spawn(|| {
+            let mut peak = 0;
+            while !stop.load(std::sync::atomic::Ordering::SeqCst) {
+                peak = peak.max(server.tree_rss_kib());
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            peak
+        });
+        let upload: Vec<&Path> = paths.iter().map(|p| p.as_path()).collect();
+        let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
+        assert_eq!(r.status(), 201);
+        let v: Value = r.json().unwrap();
+        let done = server.wait_flight(v["flight"]["id"].as_str().unwrap());
+        stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        assert_eq!(done["jobs"]["succeeded"], 5, "{done}");
+        sampler.join().unwrap()
+    });
+    assert!(
+        peak <= 512 * 1024,
+        "server and workers peaked at {} MiB over a 512 MiB limit",
+        peak / 1024
+    );
+}

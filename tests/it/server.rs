@@ -166,6 +166,35 @@ impl Server {
     }
 
     /// Pids of the worker processes that have job `job`'s frame open.
+    /// Resident memory of the server and its worker processes together,
+    /// in KiB (VmRSS of each, from /proc).
+    pub fn tree_rss_kib(&self) -> u64 {
+        let server = self.pid();
+        let rss = |pid: u32| -> u64 {
+            std::fs::read_to_string(format!("/proc/{pid}/status"))
+                .unwrap_or_default()
+                .lines()
+                .find_map(|l| l.strip_prefix("VmRSS:"))
+                .and_then(|v| v.split_whitespace().next()?.parse().ok())
+                .unwrap_or(0)
+        };
+        let mut total = rss(server);
+        for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+            let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+                continue;
+            };
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            let ppid = stat
+                .rsplit_once(')')
+                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+                .and_then(|p| p.parse::<u32>().ok());
+            if ppid == Some(server) {
+                total += rss(pid);
+            }
+        }
+        total
+    }
+
     pub fn worker_pids(&self, job: &str) -> Vec<u32> {
         let server = self.pid();
         let mut pids = Vec::new();

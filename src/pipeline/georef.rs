@@ -41,9 +41,13 @@ pub struct TargetCrs {
 }
 
 impl TargetCrs {
-    /// Parses and validates a CRS definition (`EPSG:32611`, WKT, PROJJSON or
-    /// a PROJ string). Only coordinate reference systems are accepted, not
-    /// bare coordinate operations.
+    /// Parses and validates a CRS definition: `EPSG:32611`, WKT, PROJJSON,
+    /// a PROJ string with or without `+type=crs` (as GDAL's
+    /// `SetFromUserInput` reads it: `+proj=utm +zone=11 +datum=WGS84`, the
+    /// first line of OpenDroneMap's own `gcp_list.txt` files), or ODM's
+    /// `WGS84 UTM 11N`. Only coordinate reference systems are accepted, not
+    /// bare coordinate operations. The name is `AUTH:CODE` when the
+    /// definition is, or is equivalent to, one EPSG CRS.
     pub fn parse(definition: &str) -> Result<TargetCrs, GeorefError> {
         let invalid = |reason: &str| GeorefError::InvalidCrs {
             crs: definition.to_string(),
@@ -53,6 +57,8 @@ impl TargetCrs {
         if trimmed.is_empty() {
             return Err(invalid("empty"));
         }
+        let text = odm_utm(trimmed).unwrap_or_else(|| proj_string_as_crs(trimmed));
+        let trimmed = text.as_str();
         let c_def = CString::new(trimmed).map_err(|_| invalid("contains a NUL byte"))?;
         // SAFETY: a fresh context and object, both destroyed before returning;
         // every string PROJ returns is copied before destruction.
@@ -82,17 +88,9 @@ impl TargetCrs {
                     PJ_TYPE_PJ_TYPE_GEOCENTRIC_CRS,
                 ]
                 .contains(&ty);
-            let auth = proj_sys::proj_get_id_auth_name(pj, 0);
-            let code = proj_sys::proj_get_id_code(pj, 0);
-            let name = if !auth.is_null() && !code.is_null() {
-                format!(
-                    "{}:{}",
-                    CStr::from_ptr(auth).to_string_lossy(),
-                    CStr::from_ptr(code).to_string_lossy()
-                )
-            } else {
-                trimmed.to_string()
-            };
+            let name = auth_code(pj)
+                .or_else(|| is_crs.then(|| identified_epsg(ctx, pj)).flatten())
+                .unwrap_or_else(|| trimmed.to_string());
             proj_sys::proj_destroy(pj);
             proj_sys::proj_context_destroy(ctx);
             if !is_crs {
@@ -100,6 +98,96 @@ impl TargetCrs {
             }
             Ok(TargetCrs { name, geographic })
         }
+    }
+}
+
+/// `AUTH:CODE` of a PROJ object that carries an identifier.
+///
+/// # Safety
+/// `pj` is a live PROJ object.
+unsafe fn auth_code(pj: *const proj_sys::PJ) -> Option<String> {
+    let auth = proj_sys::proj_get_id_auth_name(pj, 0);
+    let code = proj_sys::proj_get_id_code(pj, 0);
+    (!auth.is_null() && !code.is_null()).then(|| {
+        format!(
+            "{}:{}",
+            CStr::from_ptr(auth).to_string_lossy(),
+            CStr::from_ptr(code).to_string_lossy()
+        )
+    })
+}
+
+/// The one EPSG CRS PROJ finds equivalent to `pj` (confidence 70 and up:
+/// equal in every parameter, the name aside), if exactly one is.
+///
+/// # Safety
+/// `ctx` and `pj` are live PROJ objects.
+unsafe fn identified_epsg(
+    ctx: *mut proj_sys::PJ_CONTEXT,
+    pj: *const proj_sys::PJ,
+) -> Option<String> {
+    let mut confidence: *mut std::os::raw::c_int = std::ptr::null_mut();
+    let list =
+        proj_sys::proj_identify(ctx, pj, c"EPSG".as_ptr(), std::ptr::null(), &mut confidence);
+    if list.is_null() {
+        return None;
+    }
+    let n = proj_sys::proj_list_get_count(list).max(0) as usize;
+    let best = (0..n)
+        .map(|i| (*confidence.add(i), i))
+        .filter(|&(c, _)| c >= 70)
+        .collect::<Vec<_>>();
+    let top = best.iter().map(|b| b.0).max();
+    let winners: Vec<usize> = best
+        .iter()
+        .filter(|b| Some(b.0) == top)
+        .map(|b| b.1)
+        .collect();
+    let name = if let [only] = winners[..] {
+        let obj = proj_sys::proj_list_get(ctx, list, only as std::os::raw::c_int);
+        let name = if obj.is_null() { None } else { auth_code(obj) };
+        if !obj.is_null() {
+            proj_sys::proj_destroy(obj);
+        }
+        name
+    } else {
+        None
+    };
+    proj_sys::proj_int_list_destroy(confidence);
+    proj_sys::proj_list_destroy(list);
+    name
+}
+
+/// OpenDroneMap's `WGS84 UTM <zone><N|S>` header as its EPSG code.
+fn odm_utm(s: &str) -> Option<String> {
+    let words: Vec<&str> = s.split_whitespace().collect();
+    let [datum, utm, zone] = words[..] else {
+        return None;
+    };
+    if !datum.eq_ignore_ascii_case("WGS84") || !utm.eq_ignore_ascii_case("UTM") {
+        return None;
+    }
+    let (number, hemisphere) = zone.split_at(zone.len().checked_sub(1)?);
+    let number: u32 = number.parse().ok().filter(|z| (1..=60).contains(z))?;
+    let base = match hemisphere {
+        "N" | "n" => 32600,
+        "S" | "s" => 32700,
+        _ => return None,
+    };
+    Some(format!("EPSG:{}", base + number))
+}
+
+/// A PROJ string without `+type=crs` is a conversion to PROJ; GDAL, ODM
+/// and most tools read it as the CRS it implies, and so do we.
+fn proj_string_as_crs(s: &str) -> String {
+    let is_proj = s.starts_with("+proj=") || s.starts_with("proj=");
+    let words = || s.split_whitespace().map(|t| t.trim_start_matches('+'));
+    // A pipeline is an operation whatever it is told.
+    let operation = words().any(|t| t == "proj=pipeline" || t == "step");
+    if is_proj && !operation && !words().any(|t| t == "type=crs") {
+        format!("{s} +type=crs")
+    } else {
+        s.to_string()
     }
 }
 
@@ -226,4 +314,44 @@ impl Transformer {
 fn short_crs(def: &str) -> String {
     let first = def.lines().next().unwrap_or(def);
     first.chars().take(60).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crs_forms_that_gdal_and_odm_accept_are_crss() {
+        for form in [
+            "EPSG:32611",
+            "+proj=utm +zone=11 +ellps=WGS84 +datum=WGS84 +units=m +no_defs",
+            "+proj=utm +zone=11 +datum=WGS84 +units=m +no_defs +type=crs",
+            "WGS84 UTM 11N",
+            "wgs84 utm 11n",
+        ] {
+            let crs = TargetCrs::parse(form).unwrap();
+            assert_eq!(crs.name, "EPSG:32611", "{form}");
+            assert!(!crs.geographic);
+        }
+        assert_eq!(
+            TargetCrs::parse("WGS84 UTM 33S").unwrap().name,
+            "EPSG:32733"
+        );
+        let lonlat = TargetCrs::parse("+proj=longlat +datum=WGS84 +no_defs").unwrap();
+        assert_eq!(lonlat.name, "EPSG:4326");
+        assert!(lonlat.geographic);
+        // A PROJ string no EPSG CRS equals keeps its text.
+        let local = TargetCrs::parse(
+            "+proj=tmerc +lat_0=0 +lon_0=7.3 +k=1 +x_0=5000 +y_0=0 +ellps=GRS80 +units=m",
+        )
+        .unwrap();
+        assert!(local.name.starts_with("+proj=tmerc"), "{}", local.name);
+        for bad in [
+            "WGS84 UTM 61N",
+            "WGS84 UTM 11X",
+            "+proj=pipeline +step +proj=utm +zone=11",
+        ] {
+            assert!(TargetCrs::parse(bad).is_err(), "{bad}");
+        }
+    }
 }

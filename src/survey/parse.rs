@@ -63,6 +63,7 @@ fn role(value: &str, line: usize) -> Result<Role, SurveyError> {
 fn is_crs_line(line: &str) -> bool {
     let l = line.trim().to_ascii_uppercase();
     l.starts_with("EPSG:")
+        || l.starts_with("WGS84 UTM ")
         || l.starts_with("+PROJ")
         || l.starts_with("+INIT")
         || [
@@ -236,7 +237,7 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
         return Err(SurveyError("the survey has no points".into()));
     }
     Ok(Survey {
-        crs: crs_text,
+        crs: target.name,
         geographic: target.geographic,
         points,
     })

@@ -584,3 +584,33 @@ fn raw_jpegs_are_matched_through_their_exif_and_xmp_pose() {
     assert!((lon + 117.0).abs() < 0.01, "{first}");
     assert_eq!(list.len(), 3);
 }
+
+#[test]
+fn odm_header_forms_name_the_crs_in_crs_and_in_a_surveys_first_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = georeferenced_flight(dir.path());
+    let run = |form: &str, tag: &str| {
+        let survey = SURVEY.replacen("EPSG:32611", form, 1);
+        let survey_path = dir.path().join(format!("survey_{tag}.csv"));
+        std::fs::write(&survey_path, survey).unwrap();
+        let out = dir.path().join(format!("exports_{tag}"));
+        detect(&frames, &survey_path, &out, &["--crs", form]);
+        let read = |f: &str| std::fs::read_to_string(out.join(f)).unwrap();
+        (read("results.csv"), read("gcp_list.txt"))
+    };
+    let (csv, gcp) = run("EPSG:32611", "epsg");
+    assert!(csv.contains(",EPSG:32611,"), "{csv}");
+    // The first line of OpenDroneMap's own gcp_list.txt files, and its
+    // short form: the same CRS, so the same bytes.
+    for (form, tag) in [
+        (
+            "+proj=utm +zone=11 +ellps=WGS84 +datum=WGS84 +units=m +no_defs",
+            "proj",
+        ),
+        ("WGS84 UTM 11N", "odm"),
+    ] {
+        let (c, g) = run(form, tag);
+        assert_eq!(c, csv, "{form}");
+        assert_eq!(g, gcp, "{form}");
+    }
+}

@@ -30,6 +30,8 @@ enum Column {
     Y,
     Z,
     Role,
+    /// A CRS per row, as GNSS receivers export (every row the same).
+    Crs,
     Other,
 }
 
@@ -46,8 +48,41 @@ fn column(header: &str) -> Column {
         "y" | "n" | "northing" | "lat" | "latitude" => Column::Y,
         "z" | "h" | "elevation" | "elev" | "height" | "alt" | "altitude" => Column::Z,
         "role" | "type" | "kind" | "use" => Column::Role,
+        "crs" | "srs" | "epsg" | "coordinate_system" => Column::Crs,
         _ => Column::Other,
     }
+}
+
+/// The CRS of a survey that names it on every row (a `crs` column): one
+/// value throughout (a bare number is an EPSG code), or an error naming
+/// the first rows that differ or lack it.
+fn column_crs(rows: &[(usize, String)], points: usize) -> Result<String, SurveyError> {
+    let Some((first_line, first)) = rows.first() else {
+        return Err(SurveyError(
+            "the survey names no CRS: give a first line like EPSG:32611, a crs column, or the crs parameter"
+                .into(),
+        ));
+    };
+    if rows.len() < points {
+        return Err(SurveyError(format!(
+            "the survey's crs column is empty on {} of {points} rows: give it on every row, or a first line like EPSG:32611",
+            points - rows.len()
+        )));
+    }
+    let normal = |v: &str| {
+        let v = v.trim();
+        if !v.is_empty() && v.bytes().all(|b| b.is_ascii_digit()) {
+            format!("EPSG:{v}")
+        } else {
+            v.to_string()
+        }
+    };
+    if let Some((line, other)) = rows.iter().find(|(_, v)| normal(v) != normal(first)) {
+        return Err(SurveyError(format!(
+            "survey lines {first_line} and {line} name different CRSs ({first:?}, {other:?}): one survey, one CRS"
+        )));
+    }
+    Ok(normal(first))
 }
 
 fn role(value: &str, line: usize) -> Result<Role, SurveyError> {
@@ -93,14 +128,6 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
             lines.next();
         }
     }
-    let crs_text = crs.map(str::to_string).or(file_crs).ok_or_else(|| {
-        SurveyError(
-            "the survey names no CRS: give a first line like EPSG:32611, or the crs parameter"
-                .into(),
-        )
-    })?;
-    let target =
-        TargetCrs::parse(&crs_text).map_err(|e| SurveyError(format!("survey CRS: {e}")))?;
     let rows: Vec<(usize, &str)> = lines.collect();
     let Some(&(_, first)) = rows.first() else {
         return Err(SurveyError("the survey has no points".into()));
@@ -138,6 +165,8 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
     }
     let has_marker_column = columns.contains(&Column::MarkerId);
     let mut points: Vec<SurveyPoint> = Vec::new();
+    // The crs column's value on each row that has one.
+    let mut row_crs: Vec<(usize, String)> = Vec::new();
     for &(line, text) in body {
         let fields = split(text);
         if fields.len() < 4 || fields.len() > columns.len() {
@@ -183,6 +212,8 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
                 Column::Y => (point.y, point.text[1]) = (coordinate("y")?, value.clone()),
                 Column::Z => (point.z, point.text[2]) = (coordinate("z")?, value.clone()),
                 Column::Role => point.role = role(value, line)?,
+                Column::Crs if value.is_empty() => {}
+                Column::Crs => row_crs.push((line, value.clone())),
                 Column::Other => {}
             }
         }
@@ -204,12 +235,6 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
         }
         if !has_marker_column && point.name.bytes().all(|b| b.is_ascii_digit()) {
             point.marker_id = point.name.parse().ok();
-        }
-        if target.geographic && (point.y.abs() > 90.0 || point.x.abs() > 180.0) {
-            return Err(SurveyError(format!(
-                "survey line {line}: ({}, {}) is not longitude, latitude in {}",
-                point.x, point.y, target.name
-            )));
         }
         if let Some(other) = points.iter().find(|p| p.name == point.name) {
             return Err(SurveyError(format!(
@@ -236,6 +261,22 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
     if points.is_empty() {
         return Err(SurveyError("the survey has no points".into()));
     }
+    let crs_text = match (crs, file_crs) {
+        (Some(param), _) => param.to_string(),
+        (None, Some(line)) => line,
+        (None, None) => column_crs(&row_crs, points.len())?,
+    };
+    let target =
+        TargetCrs::parse(&crs_text).map_err(|e| SurveyError(format!("survey CRS: {e}")))?;
+    if let Some(p) = points
+        .iter()
+        .find(|p| target.geographic && (p.y.abs() > 90.0 || p.x.abs() > 180.0))
+    {
+        return Err(SurveyError(format!(
+            "survey line {}: ({}, {}) is not longitude, latitude in {}",
+            p.line, p.x, p.y, target.name
+        )));
+    }
     Ok(Survey {
         crs: target.name,
         geographic: target.geographic,
@@ -246,6 +287,27 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_crs_column_names_the_surveys_crs_when_every_row_agrees() {
+        let csv = "name,easting,northing,elevation,crs\n\
+                   GCP1,500010.125,4099990.500,101.2,EPSG:32611\n\
+                   GCP2,500050,4099950,99.80,EPSG:32611\n";
+        let s = parse_survey(csv, None).unwrap();
+        assert_eq!((s.crs.as_str(), s.points.len()), ("EPSG:32611", 2));
+        let epsg = "name,lat,lon,h,epsg\nA,-33.1,151.2,10,4326\nB,-33.2,151.3,11,4326\n";
+        let s = parse_survey(epsg, None).unwrap();
+        assert!(s.geographic && s.crs == "EPSG:4326");
+        let mixed = csv.replacen("EPSG:32611\n", "EPSG:32612\n", 1);
+        let e = parse_survey(&mixed, None).unwrap_err().0;
+        assert!(e.contains("lines 2 and 3 name different CRSs"), "{e}");
+        let gap = csv.replacen(",EPSG:32611\n", ",\n", 1);
+        let e = parse_survey(&gap, None).unwrap_err().0;
+        assert!(e.contains("empty on 1 of 2 rows"), "{e}");
+        // A parameter or a first line wins over the column.
+        let s = parse_survey(&mixed, Some("EPSG:32611")).unwrap();
+        assert_eq!(s.crs, "EPSG:32611");
+    }
 
     #[test]
     fn csv_with_a_header_and_whitespace_lines_give_the_same_points() {

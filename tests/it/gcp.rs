@@ -613,4 +613,18 @@ fn odm_header_forms_name_the_crs_in_crs_and_in_a_surveys_first_line() {
         assert_eq!(c, csv, "{form}");
         assert_eq!(g, gcp, "{form}");
     }
+    // A GNSS receiver's CSV: no CRS line, a crs column on every row.
+    let mut lines = SURVEY.lines().skip(1);
+    let mut column = format!("{},crs\n", lines.next().unwrap());
+    for row in lines {
+        column.push_str(&format!("{row},EPSG:32611\n"));
+    }
+    let survey_path = dir.path().join("survey_column.csv");
+    std::fs::write(&survey_path, column).unwrap();
+    let out = dir.path().join("exports_column");
+    detect(&frames, &survey_path, &out, &["--crs", "EPSG:32611"]);
+    assert_eq!(
+        std::fs::read_to_string(out.join("gcp_list.txt")).unwrap(),
+        gcp
+    );
 }

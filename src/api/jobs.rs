@@ -9,11 +9,12 @@ use uuid::Uuid;
 use super::error::{ApiError, Problem};
 use super::extract::{ApiQuery, IdPath};
 use super::idempotency::{self, Answer};
+use super::sources::{self, SourceRequest};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{flights::checked_params, results, watch, AppState};
 use crate::jobs::IdemKey;
-use crate::jobs::{JobFilter, JobState};
+use crate::jobs::{JobFilter, JobRecord, JobState};
 use crate::pipeline::output::Format;
 
 /// Query of a single-frame upload: the detection parameters, plus the
@@ -73,6 +74,7 @@ pub struct FrameUpload {
         (Vec<u8> = "image/jpeg"),
         (Vec<u8> = "image/tiff"),
         (Vec<u8> = "image/png"),
+        (SourceRequest = "application/json"),
     )),
     responses(
         (status = 201, description = "Job created and queued", body = JobView,
@@ -107,6 +109,23 @@ async fn submit_job_inner(
     idem: Option<IdemKey>,
 ) -> Result<Response, ApiError> {
     let (params, extras) = checked_params(query.as_deref(), &["name"]).await?;
+    if sources::is_json(&req) {
+        // One frame named in object storage: `{"sources": ["s3://b/key"]}`.
+        let sourced = sources::receive(&state, req, false).await?;
+        if sourced.jobs.len() != 1 {
+            return Err(ApiError::bad_request(
+                "expected_one_frame",
+                format!(
+                    "the sources name {} frames; a job is one frame (POST /v1/flights takes many)",
+                    sourced.jobs.len()
+                ),
+            )
+            .with_field("sources"));
+        }
+        let target = Target::NewFlight(Box::new(params), None);
+        let (_, jobs) = sources::commit(&state, sourced.jobs, target, idem).await?;
+        return Ok(created(&jobs[0]));
+    }
     let upload = upload::receive(&state, req, Expect::One, extras.name).await?;
     if let Some(Err(e)) = upload.parts.first().map(|p| &p.content) {
         let (status, code) = match e.code.as_str() {
@@ -130,14 +149,19 @@ async fn submit_job_inner(
     })
     .await
     .map_err(|e| ApiError::internal("recording the job", e))??;
-    let view = JobView::new(&jobs[0]);
+    Ok(created(&jobs[0]))
+}
+
+/// The 201 answer for a submitted job.
+fn created(job: &JobRecord) -> Response {
+    let view = JobView::new(job);
     tracing::info!(job.id = %view.id, image = %view.image, "job submitted");
-    Ok((
+    (
         StatusCode::CREATED,
         [(header::LOCATION, view.links.self_.clone())],
         Json(view),
     )
-        .into_response())
+        .into_response()
 }
 
 /// Lists jobs, oldest first, filtered by flight and state, a page at a time.

@@ -21,7 +21,8 @@ use md5::{Digest, Md5};
 use object_store::aws::{AmazonS3, AmazonS3Builder};
 use object_store::path::Path;
 use object_store::{
-    BackoffConfig, ClientOptions, GetOptions, ObjectStore, ObjectStoreExt, PutPayload, RetryConfig,
+    Attribute, Attributes, BackoffConfig, ClientOptions, GetOptions, ObjectStore, ObjectStoreExt,
+    PutOptions, PutPayload, RetryConfig,
 };
 use tokio::io::AsyncWriteExt;
 
@@ -128,8 +129,14 @@ impl S3Url {
         if key.chars().any(char::is_control) {
             return Err(bad("the key has control characters"));
         }
-        // object_store refuses empty, "." and ".." segments: no key can
-        // climb out of the prefix it names.
+        // An empty segment anywhere (object_store drops a leading one, so
+        // `s3://b//secret/x` would fetch `secret/x`), "." or "..": no key
+        // names another object than it reads as, or climbs out of its prefix.
+        if key.trim_end_matches('/').split('/').any(str::is_empty) {
+            return Err(bad(
+                "the key has an empty segment (two slashes, or one after the bucket)",
+            ));
+        }
         Path::parse(key.trim_end_matches('/')).map_err(|e| bad(&e.to_string()))?;
         Ok(if key.ends_with('/') {
             S3Url::Prefix {
@@ -422,16 +429,37 @@ impl S3 {
     }
 
     /// Writes `bytes` to `s3://bucket/key` (one PUT: the object appears
-    /// whole or not at all).
+    /// whole or not at all), with the Content-Type its name's extension
+    /// calls for.
     pub async fn put(&self, bucket: &str, key: &str, bytes: Vec<u8>) -> Result<(), S3Error> {
         let url = format!("s3://{bucket}/{key}");
         let client = self.client(bucket)?;
         let path = Path::parse(key).map_err(|e| S3Error::BadUrl(e.to_string()))?;
+        let mut attributes = Attributes::new();
+        attributes.insert(Attribute::ContentType, content_type(key).into());
+        let options = PutOptions {
+            attributes,
+            ..Default::default()
+        };
         client
-            .put(&path, PutPayload::from(bytes))
+            .put_opts(&path, PutPayload::from(bytes), options)
             .await
             .map_err(|e| classify(bucket, &url, e))?;
         Ok(())
+    }
+}
+
+/// The media type of a file the service writes, from its name.
+pub fn content_type(name: &str) -> &'static str {
+    let ext = name.rsplit_once('.').map_or("", |(_, e)| e);
+    match ext.to_ascii_lowercase().as_str() {
+        "csv" => "text/csv; charset=utf-8",
+        "geojson" => "application/geo+json",
+        "json" => "application/json",
+        "txt" => "text/plain; charset=utf-8",
+        "xml" => "application/xml",
+        "zip" => "application/zip",
+        _ => "application/octet-stream",
     }
 }
 
@@ -524,6 +552,8 @@ mod tests {
             "s3://fl/a.jpg",
             "s3://flights/../etc/passwd",
             "s3://flights/a//b.jpg",
+            "s3://flights//secret/canary.jpg",
+            "s3://flights//",
             "s3://flights/a\n.jpg",
             "/vsis3/flights/a.jpg",
         ] {

@@ -184,6 +184,18 @@ fn a_flight_from_a_prefix_equals_the_upload_and_its_results_are_written_back() {
     );
     assert_eq!(back[0], csv.as_str());
     assert_eq!(back[1], geojson.as_str());
+    let types = moto.ops(
+        KEY,
+        SECRET,
+        json!([
+            {"op": "type", "bucket": "results", "key": "runs/1/results.csv"},
+            {"op": "type", "bucket": "results", "key": "runs/1/results.geojson"},
+        ]),
+    );
+    assert_eq!(
+        types,
+        json!(["text/csv; charset=utf-8", "application/geo+json"])
+    );
     // Local copies of fetched frames go once their jobs end.
     let left = std::fs::read_dir(data.path().join("d/frames"))
         .unwrap()
@@ -238,10 +250,32 @@ fn single_objects_and_sources_that_cannot_work_get_clear_answers() {
     let csv = server.get_text(&format!("/v1/flights/{id}/results.csv"));
     assert_eq!(csv, cli_output(&[frames[0].as_path()], "csv"));
 
+    // One job from one object, as a single upload would be.
+    let r = post_json(
+        &server,
+        &format!("/v1/jobs?crs={CRS}"),
+        src(&["s3://flights/f/frame_0000.tif"]),
+    );
+    assert_eq!(r.status(), 201);
+    let job: Value = r.json().unwrap();
+    assert_eq!(job["image"], "frame_0000.tif");
+    let done = server.wait_job(job["id"].as_str().unwrap());
+    assert_eq!(done["state"], "succeeded", "{done}");
+    let v = problem(
+        post_json(
+            &server,
+            &format!("/v1/jobs?crs={CRS}"),
+            src(&["s3://flights/f/"]),
+        ),
+        400,
+        "expected_one_frame",
+    );
+    assert_eq!(v["field"], "sources", "{v}");
+
     // Sources that cannot work are refused at submission, naming the source;
     // nothing is recorded.
     let before = server.get_json(flights)["items"].as_array().unwrap().len();
-    let cases: [(&[&str], u16, &str, &str); 7] = [
+    let cases: [(&[&str], u16, &str, &str); 8] = [
         (
             &["s3://flights/f/missing.tif"],
             422,
@@ -275,6 +309,13 @@ fn single_objects_and_sources_that_cannot_work_get_clear_answers() {
         ),
         (
             &["s3://flights/../etc/passwd"],
+            422,
+            "invalid_source",
+            "sources[0]",
+        ),
+        // A leading empty segment would fetch `secret/canary.jpg`.
+        (
+            &["s3://flights//secret/canary.jpg"],
             422,
             "invalid_source",
             "sources[0]",

@@ -319,8 +319,24 @@ pub fn child_main(args: RunJobArgs) -> ExitCode {
     }
 }
 
-/// Runs one job; `false` when the server stopped talking mid-job.
+/// Runs one job; `false` when the server stopped talking mid-job. Errors
+/// name the frame as the client named it, never by its path on the server.
 fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
+    let stored = order.frame.to_string_lossy().into_owned();
+    let file = order
+        .frame
+        .file_name()
+        .map(|f| f.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let fail = |code: &str, message: &str| {
+        let named = message.replace(&stored, &order.image);
+        let named = if file.is_empty() {
+            named
+        } else {
+            named.replace(&file, &order.image)
+        };
+        fail(code, &named)
+    };
     let options = match order.params.check() {
         Ok((_, options)) => options,
         Err(e) => {

@@ -144,6 +144,22 @@ fn each_bad_file_fails_its_own_job_and_the_rest_goes_on() {
     for (name, st, code) in expected {
         assert_eq!(state(name), (st.to_string(), code.to_string()), "{name}");
     }
+    // Errors name frames as the client did, never by a server path.
+    for j in jobs["items"].as_array().unwrap() {
+        let message = j["error"]["message"].as_str().unwrap_or("");
+        assert!(
+            !message.contains("/frames/") && !message.contains(&d.to_string_lossy().to_string()),
+            "{message}"
+        );
+    }
+    let truncated = jobs["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|j| j["image"] == "truncated.jpg")
+        .unwrap();
+    let message = truncated["error"]["message"].as_str().unwrap();
+    assert!(message.contains("truncated.jpg"), "{message}");
     // Refused from its header alone: no worker ever opened the bomb.
     let bomb_job = jobs["items"]
         .as_array()

@@ -132,13 +132,23 @@ pub fn csv_text(s: &str) -> String {
     }
 }
 
-/// A GeoJSON FeatureCollection in WGS84 lon/lat; targets without a
-/// georeference have a null geometry (RFC 7946 §3.2 "unlocated").
+/// A GeoJSON FeatureCollection in WGS84 lon/lat of the targets that have a
+/// place. Targets of frames without a georeference stay out (many GIS
+/// tools drop null geometries silently, or refuse the file); they are in
+/// the CSV and JSON results, and the collection counts them in the foreign
+/// member `unlocated_targets` (RFC 7946 §6.1).
 pub fn to_geojson(frames: &[FrameResult], crs: &TargetCrs) -> String {
-    let mut out = String::from("{\"type\":\"FeatureCollection\",\"features\":[");
+    let unlocated = frames
+        .iter()
+        .flat_map(|f| &f.targets)
+        .filter(|t| t.lonlat.is_none())
+        .count();
+    let mut out = format!(
+        "{{\"type\":\"FeatureCollection\",\"unlocated_targets\":{unlocated},\"features\":["
+    );
     let mut first = true;
     for frame in frames {
-        for t in &frame.targets {
+        for t in frame.targets.iter().filter(|t| t.lonlat.is_some()) {
             if !first {
                 out.push(',');
             }
@@ -155,13 +165,11 @@ fn feature(out: &mut String, image: &str, t: &Target, crs: &TargetCrs) {
     let d = &t.detection;
     let wd = world_decimals(crs);
     let json = |s: &str| serde_json::to_string(s).expect("strings serialize");
-    let geometry = match t.lonlat {
-        Some((lon, lat)) => format!(
-            "{{\"type\":\"Point\",\"coordinates\":[{lon:.dd$},{lat:.dd$}]}}",
-            dd = DEGREE_DECIMALS
-        ),
-        None => "null".to_string(),
-    };
+    let (lon, lat) = t.lonlat.expect("only located targets are features");
+    let geometry = format!(
+        "{{\"type\":\"Point\",\"coordinates\":[{lon:.dd$},{lat:.dd$}]}}",
+        dd = DEGREE_DECIMALS
+    );
     let mut props = vec![
         format!("\"image\":{}", json(image)),
         format!("\"marker_type\":{}", json(d.marker_type.as_str())),

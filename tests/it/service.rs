@@ -383,10 +383,20 @@ fn bad_requests_get_problem_json_with_stable_codes() {
         415,
         "multipart_required",
     );
+    // JSON names frames in object storage; broken JSON says so.
     problem(
         post("/v1/jobs")
             .header("content-type", "application/json")
             .body("{")
+            .send()
+            .unwrap(),
+        400,
+        "invalid_json",
+    );
+    problem(
+        post("/v1/jobs")
+            .header("content-type", "application/x-www-form-urlencoded")
+            .body("a=b")
             .send()
             .unwrap(),
         415,

@@ -19,6 +19,7 @@ use crate::pipeline::frame::{FrameOptions, FrameResult, DEFAULT_MAX_TARGET_PX, D
 use crate::pipeline::georef::{TargetCrs, Transformer};
 use crate::pipeline::memory::default_max_ram_bytes;
 use crate::pipeline::output::{render, Format};
+use crate::survey::assign::parse_assignments;
 use crate::survey::export;
 use crate::survey::matching::{match_frames, point_reports, DEFAULT_PIXEL_TOLERANCE};
 use crate::survey::parse::parse_survey;
@@ -167,6 +168,9 @@ pub struct DetectArgs {
     /// CRS of the survey's coordinates, when its first line does not name one.
     #[arg(long, env = "GCP_TAGGER_SURVEY_CRS", requires = "survey")]
     pub survey_crs: Option<String>,
+    /// Observations named by hand, `name,image,px_x,px_y` per line: each names the detection nearest that pixel (within 10 px or half its size) as that survey point, for frames without georeference or camera pose.
+    #[arg(long, env = "GCP_TAGGER_ASSIGN", requires = "survey")]
+    pub assign: Option<PathBuf>,
     /// Survey matching: farthest a detection may lie from its point's expected position, in pixels (raw frames add the prediction's uncertainty).
     #[arg(long, env = "GCP_TAGGER_PIXEL_TOLERANCE", default_value_t = DEFAULT_PIXEL_TOLERANCE)]
     pub pixel_tolerance: f64,
@@ -263,10 +267,16 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
         Some(path) => {
             let text = std::fs::read_to_string(path)
                 .map_err(|e| usage(format!("cannot read survey {}: {e}", path.display())))?;
-            Some(
-                parse_survey(&text, args.survey_crs.as_deref())
-                    .map_err(|e| usage(format!("{}: {e}", path.display())))?,
-            )
+            let mut survey = parse_survey(&text, args.survey_crs.as_deref())
+                .map_err(|e| usage(format!("{}: {e}", path.display())))?;
+            if let Some(assign) = &args.assign {
+                let text = std::fs::read_to_string(assign).map_err(|e| {
+                    usage(format!("cannot read assignments {}: {e}", assign.display()))
+                })?;
+                survey.assignments = parse_assignments(&text, &survey)
+                    .map_err(|e| usage(format!("{}: {e}", assign.display())))?;
+            }
+            Some(survey)
         }
         None => None,
     };
@@ -388,6 +398,11 @@ fn write_exports(
     })?;
     for (name, text) in files {
         write_output(&dir.join(name), text.as_bytes()).map_err(|e| (exit::INTERNAL, e))?;
+    }
+    // Frames that cannot be placed are said even when quiet: without
+    // them the exports are silently empty.
+    for w in &matched.warnings {
+        eprintln!("warning: {w}");
     }
     if !quiet {
         for report in point_reports(survey, &matched) {

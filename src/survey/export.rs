@@ -292,6 +292,7 @@ pub fn report_json(
         "frames": matched.frames,
         "observations": matched.observations,
         "unmatched": matched.unmatched,
+        "warnings": matched.warnings,
     });
     round_figures(&mut doc);
     serde_json::to_string_pretty(&doc).expect("json") + "\n"

@@ -21,7 +21,7 @@ use crate::pipeline::frame::FrameResult;
 use crate::pipeline::georef::Transformer;
 
 use super::project::{expected_positions, Basis, Expected};
-use super::{Role, Survey};
+use super::{assign, Role, Survey};
 
 /// Default `pixel_tolerance`: a target's centre on a georeferenced frame
 /// lands within a few pixels of its surveyed position; 20 px leaves room
@@ -83,6 +83,9 @@ pub struct Matched {
     pub observations: Vec<Observation>,
     pub unmatched: Vec<Unmatched>,
     pub frames: Vec<FrameBasis>,
+    /// What a user must hear: frames whose printed targets cannot be
+    /// named (and why), assignments that found no detection.
+    pub warnings: Vec<String>,
 }
 
 /// Matches the targets of `frames` to `survey`'s points.
@@ -114,7 +117,18 @@ pub fn match_frames(
                 vec![None; survey.points.len()]
             }
         };
+        let unnamed_before = out.unmatched.len();
         match_frame(frame, survey, &expected, tolerance_px, &mut out);
+        let unnamed = out.unmatched[unnamed_before..]
+            .iter()
+            .filter(|u| u.code == "no_point_nearby")
+            .count();
+        if let (Some(note), true) = (&out.frames.last().and_then(|f| f.note.clone()), unnamed > 0) {
+            out.warnings.push(format!(
+                "{}: {unnamed} printed target(s) cannot be named: {note}; coded targets still match by id, and printed ones can be named in an assignment file (name,image,px_x,px_y)",
+                frame.image
+            ));
+        }
     }
     out.observations.sort_by(|a, b| {
         a.image
@@ -143,7 +157,39 @@ fn match_frame(
     out: &mut Matched,
 ) {
     let mut claims: Vec<Observation> = Vec::new();
-    for target in &frame.targets {
+    // Targets a person named: the detection nearest each assignment.
+    let mut assigned: Vec<Option<usize>> = vec![None; frame.targets.len()];
+    for a in survey.assignments.iter().filter(|a| a.image == frame.image) {
+        let point = survey
+            .points
+            .iter()
+            .position(|p| p.name == a.name)
+            .expect("assignments name survey points");
+        let nearest = frame
+            .targets
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| assigned[*i].is_none())
+            .map(|(i, t)| {
+                let (x, y) = t.detection.center;
+                (i, (x - a.px).hypot(y - a.py), t.detection.size_px)
+            })
+            .filter(|&(_, dist, size)| dist <= assign::ASSIGN_RADIUS_PX.max(0.5 * size))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        match nearest {
+            Some((i, ..)) => assigned[i] = Some(point),
+            None => out.warnings.push(format!(
+                "{}: assignment line {} ({} at {:.1}, {:.1}) has no detection within {} px",
+                frame.image,
+                a.line,
+                a.name,
+                a.px,
+                a.py,
+                assign::ASSIGN_RADIUS_PX
+            )),
+        }
+    }
+    for (index, target) in frame.targets.iter().enumerate() {
         let d = &target.detection;
         let (px, py) = d.center;
         let unmatched =
@@ -170,6 +216,11 @@ fn match_frame(
             match_confidence: confidence,
             basis,
         };
+        if let Some(point) = assigned[index] {
+            let dev = expected[point].map(|e| (px - e.px).hypot(py - e.py));
+            claims.push(observation(point, dev, 1.0, None));
+            continue;
+        }
         if let (true, Some(id)) = (d.marker_type.is_coded(), d.marker_id) {
             let Some(point) = survey.points.iter().position(|p| p.marker_id == Some(id)) else {
                 out.unmatched.push(unmatched(

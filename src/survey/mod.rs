@@ -8,6 +8,7 @@
 //! - [`matching`]: detections tied to points, deviations, rejections.
 //! - [`export`]: gcp_list.txt, Pix4D marks, Metashape markers, GeoJSON, report.
 
+pub mod assign;
 pub mod export;
 pub mod matching;
 pub mod parse;
@@ -49,4 +50,6 @@ pub struct Survey {
     pub crs: String,
     pub geographic: bool,
     pub points: Vec<SurveyPoint>,
+    /// Observations a person named (see [`assign`]); empty unless given.
+    pub assignments: Vec<assign::Assignment>,
 }

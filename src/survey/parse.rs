@@ -281,6 +281,7 @@ pub fn parse_survey(text: &str, crs: Option<&str>) -> Result<Survey, SurveyError
         crs: target.name,
         geographic: target.geographic,
         points,
+        assignments: Vec::new(),
     })
 }
 

@@ -628,3 +628,83 @@ fn odm_header_forms_name_the_crs_in_crs_and_in_a_surveys_first_line() {
         gcp
     );
 }
+
+/// A frame with neither georeference nor GPS: printed targets cannot be
+/// placed, so they cannot be named; the user hears which frame and why, and
+/// names them by hand.
+#[test]
+fn unplaceable_frames_are_said_and_printed_targets_can_be_assigned_by_hand() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = scene(W, H, 77);
+    for (i, g) in GROUND.iter().enumerate() {
+        place(&mut s, g.id, pixel(ORIGINS[0], g.at), (i * 37) as f64);
+    }
+    let (img, _) = render(&s).unwrap();
+    let frame = dir.path().join("nogps.jpg");
+    write_image(&frame, &img, SampleFormat::Jpeg, None).unwrap();
+    let survey_path = dir.path().join("survey.csv");
+    std::fs::write(&survey_path, SURVEY).unwrap();
+    let frames = vec![frame];
+
+    let run = |extra: &[&str], tag: &str| {
+        let out = dir.path().join(tag);
+        std::fs::create_dir_all(&out).unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+            .arg("detect")
+            .args(&frames)
+            .args([
+                "--marker-type",
+                "apriltag,crosshair",
+                "--min-target-px",
+                "30",
+            ])
+            .args(["--crs", "EPSG:32611", "--quiet", "--output"])
+            .arg(out.join("results.csv"))
+            .arg("--survey")
+            .arg(&survey_path)
+            .arg("--exports")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let gcp = std::fs::read_to_string(out.join("gcp_list.txt")).unwrap();
+        (
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+            read_gcp_list(&gcp).1,
+        )
+    };
+    let (stderr, obs) = run(&[], "plain");
+    assert!(
+        stderr.contains("nogps.jpg: 3 printed target(s) cannot be named"),
+        "{stderr}"
+    );
+    // Coded targets still match by id.
+    assert!(
+        obs.contains_key("GCP3") && obs.contains_key("GCP15"),
+        "{obs:?}"
+    );
+    assert!(!obs.contains_key("P1"));
+
+    // P1 named by a click 3 px off: the detection's own centre is kept.
+    let at = pixel(ORIGINS[0], GROUND[5].at);
+    let assign = dir.path().join("assign.csv");
+    std::fs::write(
+        &assign,
+        format!(
+            "name,image,px_x,px_y\nP1,nogps.jpg,{},{}\n",
+            at.0 + 3.0,
+            at.1 - 1.0
+        ),
+    )
+    .unwrap();
+    let (stderr, obs) = run(&["--assign", assign.to_str().unwrap()], "assigned");
+    assert!(
+        stderr.contains("2 printed target(s) cannot be named"),
+        "{stderr}"
+    );
+    let p1 = &obs["P1"];
+    assert_eq!(p1.len(), 1);
+    let (px, py): (f64, f64) = (p1[0].1, p1[0].2);
+    assert!((px - at.0).hypot(py - at.1) < 0.5, "{px} {py} vs {at:?}");
+}

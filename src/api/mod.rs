@@ -133,6 +133,7 @@ fn api_routes() -> OpenApiRouter<AppState> {
         .routes(routes!(flights::get_flight_results_geojson))
         .routes(routes!(flights::cancel_flight))
         .routes(routes!(survey::put_survey, survey::get_survey))
+        .routes(routes!(survey::put_assignments))
         .routes(routes!(survey::get_export))
         .routes(routes!(ops::livez))
         .routes(routes!(ops::readyz))

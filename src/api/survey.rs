@@ -107,7 +107,12 @@ pub async fn put_survey(
             format!("the survey is not UTF-8 text: {e}"),
         )
     })?;
-    let stored = StoredSurvey { crs, text };
+    // A new survey starts without assignments: they named the old one's points.
+    let stored = StoredSurvey {
+        crs,
+        text,
+        assignments: None,
+    };
     let data = state.data.clone();
     tokio::task::spawn_blocking(move || {
         let survey = stored
@@ -119,6 +124,68 @@ pub async fn put_survey(
     })
     .await
     .map_err(|e| ApiError::internal("storing the survey", e))?
+}
+
+/// Observations named by hand, for frames the matcher cannot place (no
+/// georeference, no GPS): the body is lines `name,image,px_x,px_y` (a
+/// header line is optional); each names the detection nearest that pixel
+/// (within 10 px or half its size) as that survey point. Replaces any
+/// assignments before; a new survey clears them.
+#[utoipa::path(
+    put, path = "/v1/flights/{id}/assignments", tag = "survey",
+    params(("id" = Uuid, Path, description = "Flight id")),
+    request_body(content((String = "text/csv"), (String = "text/plain"))),
+    responses(
+        (status = 200, description = "Assignments stored", body = AssignmentsSummary),
+        (status = 400, description = "Malformed id", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such flight, or no survey yet", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "File too large", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "A bad line, named", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn put_assignments(
+    State(state): State<AppState>,
+    IdPath(id): IdPath,
+    body: Bytes,
+) -> Result<Json<AssignmentsSummary>, ApiError> {
+    if body.len() > MAX_SURVEY_BYTES {
+        return Err(ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "request_too_large",
+            format!("an assignment file is at most {MAX_SURVEY_BYTES} bytes"),
+        ));
+    }
+    let text = String::from_utf8(body.to_vec()).map_err(|e| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_assignments",
+            format!("the assignments are not UTF-8 text: {e}"),
+        )
+    })?;
+    flight_survey(&state, id).await?;
+    let data = state.data.clone();
+    tokio::task::spawn_blocking(move || {
+        let mut stored = gcp::load_survey(&data, id)
+            .map_err(|e| ApiError::internal("reading the survey", e))?
+            .ok_or_else(|| ApiError::internal("reading the survey", "it went away"))?;
+        stored.assignments = Some(text);
+        let survey = stored.parse().map_err(|e| {
+            ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_assignments", e.0)
+        })?;
+        gcp::save_survey(&data, id, &stored)
+            .map_err(|e| ApiError::internal("storing the assignments", e))?;
+        Ok(Json(AssignmentsSummary {
+            assignments: survey.assignments.len(),
+        }))
+    })
+    .await
+    .map_err(|e| ApiError::internal("storing the assignments", e))?
+}
+
+/// Assignments stored for a flight.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct AssignmentsSummary {
+    pub assignments: usize,
 }
 
 /// A flight's survey, as parsed.

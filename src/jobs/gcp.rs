@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::pipeline::georef::Transformer;
 use crate::storage::DataDir;
+use crate::survey::assign::parse_assignments;
 use crate::survey::matching::{match_frames, DEFAULT_PIXEL_TOLERANCE};
 use crate::survey::parse::{parse_survey, SurveyError};
 use crate::survey::{export, Survey};
@@ -16,16 +17,23 @@ use super::model::{FlightId, FlightRecord, JobRecord};
 use super::results::load_frames;
 use crate::pipeline::frame::FrameResult;
 
-/// A survey as stored: the uploaded text and the CRS parameter, if any.
+/// A survey as stored: the uploaded text, the CRS parameter, if any, and
+/// the assignment file's text, if any (see [`crate::survey::assign`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StoredSurvey {
     pub crs: Option<String>,
     pub text: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub assignments: Option<String>,
 }
 
 impl StoredSurvey {
     pub fn parse(&self) -> Result<Survey, SurveyError> {
-        parse_survey(&self.text, self.crs.as_deref())
+        let mut survey = parse_survey(&self.text, self.crs.as_deref())?;
+        if let Some(text) = &self.assignments {
+            survey.assignments = parse_assignments(text, &survey)?;
+        }
+        Ok(survey)
     }
 }
 

@@ -707,4 +707,48 @@ fn unplaceable_frames_are_said_and_printed_targets_can_be_assigned_by_hand() {
     assert_eq!(p1.len(), 1);
     let (px, py): (f64, f64) = (p1[0].1, p1[0].2);
     assert!((px - at.0).hypot(py - at.1) < 0.5, "{px} {py} vs {at:?}");
+
+    // The service: the warning in the report, the assignment by PUT, and
+    // the same gcp_list.txt as the command line's.
+    let data = tempfile::tempdir().unwrap();
+    let server = Server::start(&data.path().join("d"), &[]);
+    let r = server.post_files(
+        "/v1/flights?crs=EPSG:32611&marker_types=apriltag,crosshair&min_target_px=30",
+        &[frames[0].as_path()],
+    );
+    assert_eq!(r.status(), 201);
+    let id = r.json::<Value>().unwrap()["flight"]["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let put = |what: &str, body: String| {
+        server
+            .client
+            .put(server.url(&format!("/v1/flights/{id}/{what}")))
+            .body(body)
+            .send()
+            .unwrap()
+    };
+    let r = put("assignments", "P1,nogps.jpg,1,2\n".into());
+    crate::server::problem(r, 404, "no_survey");
+    assert_eq!(put("survey", SURVEY.into()).status(), 200);
+    server.wait_flight(&id);
+    let report = server.get_json(&format!("/v1/flights/{id}/exports/report.json"));
+    let warnings = report["warnings"].to_string();
+    assert!(
+        warnings.contains("nogps.jpg: 3 printed target(s) cannot be named"),
+        "{warnings}"
+    );
+    let r = put("assignments", "P9,nogps.jpg,1,2\n".into());
+    let v = crate::server::problem(r, 422, "invalid_assignments");
+    assert!(
+        v["detail"].as_str().unwrap().contains("P9 is not a point"),
+        "{v}"
+    );
+    let r = put("assignments", std::fs::read_to_string(&assign).unwrap());
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.json::<Value>().unwrap()["assignments"], 1);
+    let served = server.get_text(&format!("/v1/flights/{id}/exports/gcp_list.txt"));
+    let cli = std::fs::read_to_string(dir.path().join("assigned/gcp_list.txt")).unwrap();
+    assert_eq!(served, cli);
 }

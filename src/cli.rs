@@ -174,7 +174,7 @@ pub struct DetectArgs {
     /// Survey matching: farthest a detection may lie from its point's expected position, in pixels (raw frames add the prediction's uncertainty).
     #[arg(long, env = "GCP_TAGGER_PIXEL_TOLERANCE", default_value_t = DEFAULT_PIXEL_TOLERANCE)]
     pub pixel_tolerance: f64,
-    /// Folder for gcp_list.txt, pix4d_marks.csv, metashape_markers.xml, survey_points.geojson, observations.csv and report.json.
+    /// Folder for gcp_list.txt, pix4d_marks.csv, metashape_markers.xml, survey_points.geojson, observations.csv and report.json, and exports.zip holding all six.
     #[arg(long, env = "GCP_TAGGER_EXPORTS", requires = "survey")]
     pub exports: Option<PathBuf>,
     /// Frames processed at once (default: number of cores).
@@ -396,9 +396,11 @@ fn write_exports(
             format!("cannot create {}: {e}", dir.display()),
         )
     })?;
-    for (name, text) in files {
+    for (name, text) in &files {
         write_output(&dir.join(name), text.as_bytes()).map_err(|e| (exit::INTERNAL, e))?;
     }
+    write_output(&dir.join(export::BUNDLE), &export::bundle(&files))
+        .map_err(|e| (exit::INTERNAL, e))?;
     // Frames that cannot be placed are said even when quiet: without
     // them the exports are silently empty.
     for w in &matched.warnings {

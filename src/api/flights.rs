@@ -342,7 +342,8 @@ fn flight_view(state: &AppState, id: Uuid) -> Option<FlightView> {
     params(("id" = Uuid, Path, description = "Flight id"), WaitQuery),
     responses(
         (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
-        (status = 200, description = "The flight", body = FlightView),
+        (status = 200, description = "The flight", body = FlightView,
+            headers(("Retry-After" = String, description = "0 when a wait= ran out before every job ended: ask again"))),
         (status = 404, description = "No such flight", body = Problem, content_type = "application/problem+json"),
     )
 )]
@@ -350,7 +351,7 @@ pub async fn get_flight(
     State(state): State<AppState>,
     IdPath(id): IdPath,
     ApiQuery(q): ApiQuery<WaitQuery>,
-) -> Result<Json<FlightView>, ApiError> {
+) -> Result<Response, ApiError> {
     let wait = watch::wait_duration(q.wait)?;
     if state.store.flight(id).is_none() {
         return Err(ApiError::not_found("flight", id));
@@ -359,9 +360,9 @@ pub async fn get_flight(
         flight_view(&state, id).is_none_or(|f| f.state == FlightState::Finished)
     })
     .await;
-    flight_view(&state, id)
-        .map(Json)
-        .ok_or_else(|| ApiError::not_found("flight", id))
+    let view = flight_view(&state, id).ok_or_else(|| ApiError::not_found("flight", id))?;
+    let finished = view.state == FlightState::Finished;
+    Ok(watch::answer(Json(view), wait, finished))
 }
 
 /// A flight's jobs in submission order, a page at a time.

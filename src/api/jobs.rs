@@ -205,7 +205,8 @@ fn page(mut items: Vec<JobView>, limit: usize) -> JobPage {
     params(("id" = Uuid, Path, description = "Job id"), WaitQuery),
     responses(
         (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
-        (status = 200, description = "The job", body = JobView),
+        (status = 200, description = "The job", body = JobView,
+            headers(("Retry-After" = String, description = "0 when a wait= ran out before the job ended: ask again"))),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
     )
 )]
@@ -213,7 +214,7 @@ pub async fn get_job(
     State(state): State<AppState>,
     IdPath(id): IdPath,
     ApiQuery(q): ApiQuery<WaitQuery>,
-) -> Result<Json<JobView>, ApiError> {
+) -> Result<Response, ApiError> {
     let wait = watch::wait_duration(q.wait)?;
     if state.store.job(id).is_none() {
         return Err(ApiError::not_found("job", id));
@@ -226,7 +227,8 @@ pub async fn get_job(
         .store
         .job(id)
         .ok_or_else(|| ApiError::not_found("job", id))?;
-    Ok(Json(JobView::new(&job)))
+    let ended = job.state.is_terminal();
+    Ok(watch::answer(Json(JobView::new(&job)), wait, ended))
 }
 
 /// Server-sent events of a job: a `job` event with the job whenever it

@@ -14,7 +14,8 @@ use super::extract::{ApiQuery, IdPath};
 use super::views::{GeoJson, ResultsQuery};
 use super::AppState;
 use crate::jobs::gcp::{self, StoredSurvey};
-use crate::survey::export::FILES;
+use crate::storage::s3::content_type;
+use crate::survey::export::{bundle, BUNDLE, FILES};
 use crate::survey::{Role, Survey};
 
 /// Largest survey file accepted.
@@ -230,18 +231,20 @@ async fn flight_survey(state: &AppState, id: Uuid) -> Result<Survey, ApiError> {
 /// One GCP file of a flight with a survey: `gcp_list.txt` (OpenDroneMap),
 /// `pix4d_marks.csv`, `metashape_markers.xml`, `survey_points.geojson`,
 /// `observations.csv` (every detection with its point, deviation and
-/// status) or `report.json` (per-point report and every decision). Needs
-/// every job ended, or `?partial=true`.
+/// status) or `report.json` (per-point report and every decision), or
+/// `exports.zip`, all six in one download. Needs every job ended, or
+/// `?partial=true`.
 #[utoipa::path(
     get, path = "/v1/flights/{id}/exports/{file}", tag = "survey",
     params(("id" = Uuid, Path, description = "Flight id"),
-        ("file" = String, Path, description = "gcp_list.txt, pix4d_marks.csv, metashape_markers.xml, survey_points.geojson, observations.csv or report.json"),
+        ("file" = String, Path, description = "gcp_list.txt, pix4d_marks.csv, metashape_markers.xml, survey_points.geojson, observations.csv, report.json, or exports.zip (all six)"),
         ResultsQuery),
     responses(
         (status = 400, description = "Malformed id or query", body = Problem, content_type = "application/problem+json"),
         (status = 200, description = "The file", content(
             (String = "text/plain"), (String = "text/csv"), (String = "application/xml"),
-            (GeoJson = "application/geo+json"), (GeoJson = "application/json"))),
+            (GeoJson = "application/geo+json"), (GeoJson = "application/json"),
+            (Vec<u8> = "application/zip"))),
         (status = 404, description = "No such flight, file, or no survey", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "Jobs still queued or running", body = Problem, content_type = "application/problem+json"),
     )
@@ -252,13 +255,17 @@ pub async fn get_export(
     ApiQuery(q): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
     let id: Uuid = id.parse().map_err(|_| ApiError::not_found("flight", &id))?;
-    let Some(index) = FILES.iter().position(|f| *f == file) else {
+    let index = FILES.iter().position(|f| *f == file);
+    if index.is_none() && file != BUNDLE {
         return Err(ApiError::new(
             StatusCode::NOT_FOUND,
             "not_found",
-            format!("no export {file:?}; exports are {}", FILES.join(", ")),
+            format!(
+                "no export {file:?}; exports are {} and {BUNDLE} (all of them)",
+                FILES.join(", ")
+            ),
         ));
-    };
+    }
     let flight = state
         .store
         .flight(id)
@@ -281,15 +288,15 @@ pub async fn get_export(
             .await
             .map_err(|e| ApiError::internal("making the exports", e))?
             .map_err(|e| ApiError::internal("making the exports", e))?;
-    let (name, text) = files.swap_remove(index);
-    let media = match name.rsplit('.').next() {
-        Some("txt") => "text/plain; charset=utf-8",
-        Some("csv") => "text/csv; charset=utf-8",
-        Some("xml") => "application/xml",
-        Some("geojson") => "application/geo+json",
-        _ => "application/json",
+    let (name, bytes, disposition) = match index {
+        Some(i) => {
+            let (name, text) = files.swap_remove(i);
+            (name, text.into_bytes(), "inline")
+        }
+        None => (BUNDLE, bundle(&files), "attachment"),
     };
-    let disposition = format!("inline; filename=\"{name}\"");
+    let media = content_type(name);
+    let disposition = format!("{disposition}; filename=\"{name}\"");
     Ok((
         [
             (header::CONTENT_TYPE, HeaderValue::from_static(media)),
@@ -298,7 +305,7 @@ pub async fn get_export(
                 HeaderValue::from_str(&disposition).expect("ascii file name"),
             ),
         ],
-        text,
+        bytes,
     )
         .into_response())
 }

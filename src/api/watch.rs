@@ -5,7 +5,9 @@
 use std::convert::Infallible;
 use std::time::Duration;
 
+use axum::http::{header, HeaderValue};
 use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
 use futures_util::Stream;
 use tokio::time::Instant;
 
@@ -28,6 +30,19 @@ pub fn wait_duration(wait: Option<u64>) -> Result<Duration, ApiError> {
         )
         .with_field("wait")),
     }
+}
+
+/// A long-poll's answer: when the client waited and the job or flight has
+/// not ended, `Retry-After: 0` says the wait ran out (at most
+/// [`MAX_WAIT_SECS`]) and to ask again, so clients loop without guessing.
+pub fn answer(body: impl IntoResponse, wait: Duration, ended: bool) -> Response {
+    let mut response = body.into_response();
+    if !wait.is_zero() && !ended {
+        response
+            .headers_mut()
+            .insert(header::RETRY_AFTER, HeaderValue::from_static("0"));
+    }
+    response
 }
 
 /// Waits until `done()` holds, `wait` passes, or the server shuts down.

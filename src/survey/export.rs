@@ -27,6 +27,26 @@ pub const FILES: [&str; 6] = [
     "report.json",
 ];
 
+/// The one-download bundle of every export file.
+pub const BUNDLE: &str = "exports.zip";
+
+/// The export files in one zip archive, in [`FILES`] order, deflated, with
+/// a fixed date and mode: the same files give the same bytes.
+pub fn bundle(files: &[(&str, String)]) -> Vec<u8> {
+    use std::io::Write;
+    let mut zip = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    let options = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated)
+        .last_modified_time(zip::DateTime::default())
+        .unix_permissions(0o644);
+    for (name, text) in files {
+        zip.start_file(*name, options)
+            .and_then(|()| zip.write_all(text.as_bytes()).map_err(Into::into))
+            .expect("writing to memory");
+    }
+    zip.finish().expect("writing to memory").into_inner()
+}
+
 /// Observations sorted by image, then point name.
 fn sorted<'a>(matched: &'a Matched, role: Option<Role>, survey: &Survey) -> Vec<&'a Observation> {
     let mut obs: Vec<&Observation> = matched

@@ -453,3 +453,37 @@ fn a_full_disk_pauses_jobs_and_they_finish_once_space_returns() {
     let errors = log.lines().filter(|l| l.contains("ERROR")).count();
     assert!(errors <= 5, "{errors} error lines:\n{log}");
 }
+
+#[test]
+fn a_long_poll_that_runs_out_says_to_ask_again() {
+    let frames = &flight().1;
+    let dir = tempfile::tempdir().unwrap();
+    let noise = noise_frame(dir.path());
+    let data = dir.path().join("d");
+    let server = Server::start(&data, &["--workers", "1"]);
+    let upload = [noise.as_path(), frames[0].as_path()];
+    let r = server.post_files(
+        &format!("/v1/flights?crs={CRS}&marker_types=apriltag,crosshair"),
+        &upload,
+    );
+    assert_eq!(r.status(), 201);
+    let flight: Value = r.json().unwrap();
+    let id = flight["flight"]["id"].as_str().unwrap().to_string();
+    // The second frame waits behind the first's seconds of work.
+    let queued = job_id(
+        &server,
+        &id,
+        &frames[0].file_name().unwrap().to_string_lossy(),
+    );
+    let r = server.get(&format!("/v1/jobs/{queued}?wait=1"));
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["retry-after"], "0");
+    let r = server.get(&format!("/v1/flights/{id}?wait=1"));
+    assert_eq!(r.headers()["retry-after"], "0");
+    // Ended: no Retry-After.
+    server.wait_flight(&id);
+    let r = server.get(&format!("/v1/jobs/{queued}?wait=1"));
+    assert!(r.headers().get("retry-after").is_none());
+    let r = server.get(&format!("/v1/flights/{id}?wait=5"));
+    assert!(r.headers().get("retry-after").is_none());
+}

@@ -455,6 +455,20 @@ fn georeferenced_frames_give_byte_exact_gcp_files_from_the_cli_and_the_service()
         let served = server.get_text(&format!("/v1/flights/{id}/exports/{file}"));
         assert_eq!(served, read(file), "{file}");
     }
+    // One download: the six files' bytes, the same archive as the CLI's.
+    let r = server.get(&format!("/v1/flights/{id}/exports/exports.zip"));
+    assert_eq!(r.headers()["content-type"], "application/zip");
+    let zipped = r.bytes().unwrap().to_vec();
+    assert_eq!(zipped, std::fs::read(out.join("exports.zip")).unwrap());
+    let mut archive = zip::ZipArchive::new(std::io::Cursor::new(zipped)).unwrap();
+    assert_eq!(archive.len(), FILES.len());
+    for (i, file) in FILES.iter().enumerate() {
+        let mut entry = archive.by_index(i).unwrap();
+        assert_eq!(entry.name(), *file);
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut entry, &mut text).unwrap();
+        assert_eq!(text, read(file), "{file} in exports.zip");
+    }
     // A bad survey line is named.
     let r = server
         .client

@@ -62,6 +62,11 @@ pub struct JobView {
     pub attempts: u32,
     /// Why the job failed.
     pub error: Option<JobError>,
+    /// What a succeeded frame's user should hear: `partial: rows R..H do
+    /// not decode ...` for a frame cut off part-way (its targets come from
+    /// the rows before the cut), a frame without georeference.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// A cancel was asked for and the job stops at its next tile.
     pub cancel_requested: bool,
     /// The `s3://bucket/key` the frame is fetched from (frames submitted as sources).
@@ -92,6 +97,7 @@ impl JobView {
             targets: j.targets,
             attempts: j.attempts,
             error: j.error.clone(),
+            warnings: j.warnings.clone(),
             cancel_requested: j.cancel_requested,
             source: j.source.clone(),
             created_at: timestamp(j.created_at),

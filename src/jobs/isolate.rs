@@ -58,6 +58,10 @@ pub enum ChildLine {
         code: String,
         message: String,
     },
+    /// A condition the user should hear that did not stop the frame.
+    Warning {
+        message: String,
+    },
 }
 
 impl ChildLine {
@@ -79,6 +83,9 @@ impl ChildLine {
                 targets: num()? as u32,
                 width: num()? as u32,
                 height: num()? as u32,
+            },
+            "warning" => ChildLine::Warning {
+                message: line.strip_prefix("warning ")?.to_string(),
             },
             "error" => {
                 let rest = line.strip_prefix("error ")?;
@@ -231,9 +238,10 @@ pub fn raster_code(e: &RasterError) -> &'static str {
         RasterError::TooSmall { .. } => "frame_too_small",
         RasterError::Bands(_) => "unsupported_bands",
         RasterError::Empty => "empty_frame",
-        RasterError::Io(_) | RasterError::RefusedPath(_) | RasterError::Decode { .. } => {
-            "unreadable_frame"
-        }
+        RasterError::Io(_)
+        | RasterError::RefusedPath(_)
+        | RasterError::Decode { .. }
+        | RasterError::CutOff { .. } => "unreadable_frame",
     }
 }
 
@@ -328,15 +336,15 @@ fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
         .file_name()
         .map(|f| f.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let fail = |code: &str, message: &str| {
+    let named = |message: &str| {
         let named = message.replace(&stored, &order.image);
-        let named = if file.is_empty() {
+        if file.is_empty() {
             named
         } else {
             named.replace(&file, &order.image)
-        };
-        fail(code, &named)
+        }
     };
+    let fail = |code: &str, message: &str| fail(code, &named(message));
     let options = match order.params.check() {
         Ok((_, options)) => options,
         Err(e) => {
@@ -366,7 +374,11 @@ fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
         limit_self(data, cpu);
     }
     match detect_frame(frame, &order.image, &options, transformer, &Progress) {
-        Ok(result) => {
+        Ok(mut result) => {
+            for w in &mut result.warnings {
+                *w = named(w);
+                say(&format!("warning {}", w.replace('\n', " ")));
+            }
             let bytes = serde_json::to_vec(&result).expect("results serialize");
             match write_whole(&order.result, &bytes) {
                 Ok(()) => say(&format!(

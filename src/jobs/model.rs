@@ -108,6 +108,9 @@ pub struct JobRecord {
     pub source: Option<String>,
     /// The object's ETag when the job was submitted (fetches require it).
     pub source_etag: Option<String>,
+    /// Conditions of a succeeded frame the user should hear (a frame cut
+    /// off part-way, no georeference).
+    pub warnings: Vec<String>,
 }
 
 /// A submission's group of jobs, sharing one set of parameters.

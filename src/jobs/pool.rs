@@ -363,6 +363,7 @@ impl Worker {
         }
         tracing::debug!(pid = child.pid(), "worker process started");
         let mut megapixels = 0.0;
+        let mut warnings = Vec::new();
         let mut permit = None;
         loop {
             let line = match child.next_line(POLL) {
@@ -408,6 +409,7 @@ impl Worker {
                 Some(ChildLine::Tile { done, total }) => {
                     self.store.progress(job.id, None, done, total)
                 }
+                Some(ChildLine::Warning { message }) => warnings.push(message),
                 Some(ChildLine::Done {
                     targets,
                     width,
@@ -420,6 +422,7 @@ impl Worker {
                             width,
                             height,
                             targets,
+                            warnings,
                         },
                         megapixels,
                     );

@@ -81,6 +81,8 @@ pub enum Outcome {
         width: u32,
         height: u32,
         targets: u32,
+        /// What did not stop the frame but the user should hear.
+        warnings: Vec<String>,
     },
     Failed(JobError),
     Canceled,
@@ -168,8 +170,9 @@ CREATE TABLE IF NOT EXISTS idempotency (
 
 /// Columns added after the first release: (table, column, type). Opening
 /// an older data folder adds them.
-const ADDED_COLUMNS: [(&str, &str, &str); 7] = [
+const ADDED_COLUMNS: [(&str, &str, &str); 8] = [
     ("jobs", "source", "TEXT"),
+    ("jobs", "warnings", "TEXT"),
     ("jobs", "source_etag", "TEXT"),
     ("flights", "export_to", "TEXT"),
     ("flights", "export_state", "TEXT"),
@@ -694,6 +697,7 @@ impl Store {
                 width,
                 height,
                 targets,
+                ..
             } => (
                 JobState::Succeeded,
                 None,
@@ -704,11 +708,18 @@ impl Store {
             Outcome::Canceled => (JobState::Canceled, None, None, None),
             Outcome::Interrupted => (JobState::Queued, None, None, None),
         };
+        let warnings = match outcome {
+            Outcome::Succeeded { warnings, .. } => warnings.clone(),
+            _ => Vec::new(),
+        };
+        let warnings_text =
+            (!warnings.is_empty()).then(|| serde_json::to_string(&warnings).expect("strings"));
         let finished_at = (state_name != JobState::Queued).then_some(finished);
         let changed = db.execute(
             "UPDATE jobs SET state = ?2, finished_at = ?3, error_code = ?4, error_message = ?5,
                  width = COALESCE(?6, width), height = COALESCE(?7, height), targets = ?8,
-                 started_at = CASE WHEN ?2 = 'queued' THEN NULL ELSE started_at END
+                 started_at = CASE WHEN ?2 = 'queued' THEN NULL ELSE started_at END,
+                 warnings = ?9
              WHERE id = ?1",
             params![
                 id.to_string(),
@@ -719,6 +730,7 @@ impl Store {
                 size.map(|s| s.0),
                 size.map(|s| s.1),
                 targets,
+                warnings_text,
             ],
         )?;
         let mut state = self.state();
@@ -736,6 +748,7 @@ impl Store {
             job.height = Some(h);
         }
         job.targets = targets;
+        job.warnings = warnings;
         let seq = job.seq;
         if state_name == JobState::Queued {
             job.started_at = None;
@@ -909,6 +922,7 @@ fn insert_jobs(
             cancel_requested: false,
             source,
             source_etag,
+            warnings: Vec::new(),
         });
     }
     Ok(out)
@@ -1014,7 +1028,8 @@ fn load(conn: &Connection) -> Result<State, StoreError> {
     }
     let mut stmt = conn.prepare(
         "SELECT seq, id, flight_id, image, ext, bytes, state, created_at, started_at, finished_at,
-                attempts, error_code, error_message, width, height, targets, source, source_etag
+                attempts, error_code, error_message, width, height, targets, source, source_etag,
+                warnings
          FROM jobs ORDER BY seq",
     )?;
     let mut rows = stmt.query([])?;
@@ -1050,6 +1065,10 @@ fn load(conn: &Connection) -> Result<State, StoreError> {
             cancel_requested: false,
             source: r.get(16)?,
             source_etag: r.get(17)?,
+            warnings: r
+                .get::<_, Option<String>>(18)?
+                .and_then(|t| serde_json::from_str(&t).ok())
+                .unwrap_or_default(),
         });
     }
     add_jobs(&mut state, records);
@@ -1121,6 +1140,7 @@ mod tests {
             width: 1,
             height: 1,
             targets: 0,
+            warnings: vec!["partial: rows 1..2 do not decode".into()],
         };
         store.finish(a.id, &done).unwrap();
         let due = store.exports_due();
@@ -1132,6 +1152,11 @@ mod tests {
         let store = Store::open(&path).unwrap();
         let export = store.flight(flight.id).unwrap().export.unwrap();
         assert_eq!((export.state, export.attempts), (ExportState::Written, 1));
+        // A succeeded job's warnings survive a restart.
+        assert_eq!(
+            store.job(a.id).unwrap().warnings,
+            ["partial: rows 1..2 do not decode"]
+        );
         assert_eq!(store.job(b.id).unwrap().error, Some(error));
     }
 

@@ -199,6 +199,8 @@ pub fn detect_frame(
     let mut strip = vec![0u8; w * grid.tile_h];
     let mut found: Vec<Detection> = Vec::new();
     let mut done = 0;
+    // Where the frame stops decoding, when it does (a file cut off part-way).
+    let mut cut: Option<(usize, String)> = None;
     for (row, &y0) in grid.ys.iter().enumerate() {
         // Keep the rows this strip shares with the previous one and read only
         // the new ones, so the file is read strictly top to bottom.
@@ -210,7 +212,37 @@ pub fn detect_frame(
         if kept_rows > 0 {
             strip.copy_within((grid.tile_h - kept_rows) * w.., 0);
         }
-        frame.read_rows(&mut strip[kept_rows * w..])?;
+        match frame.read_rows(&mut strip[kept_rows * w..]) {
+            Ok(()) => {}
+            // Not one row decodes: nothing to look at.
+            Err(RasterError::CutOff {
+                row: 0, message, ..
+            }) => {
+                return Err(FrameError::Raster(RasterError::Decode {
+                    row: 0,
+                    end: grid.tile_h,
+                    message,
+                }))
+            }
+            Err(RasterError::CutOff {
+                row: at, message, ..
+            }) => {
+                // The rows below the cut repeat the last good one (no edge
+                // there to take for a target); detections reaching past it
+                // are dropped below.
+                let valid = at - y0;
+                cut = Some((at, message));
+                if valid == 0 {
+                    // The cut falls on this strip's first row.
+                    break;
+                }
+                let last = strip[(valid - 1) * w..valid * w].to_vec();
+                for r in valid..grid.tile_h {
+                    strip[r * w..(r + 1) * w].copy_from_slice(&last);
+                }
+            }
+            Err(e) => return Err(e.into()),
+        }
         for (col, &x0) in grid.xs.iter().enumerate() {
             if observer.should_stop() {
                 return Err(FrameError::Canceled);
@@ -224,11 +256,21 @@ pub fn detect_frame(
             done += 1;
             observer.tile_done(done, grid.count());
         }
+        if cut.is_some() {
+            break;
+        }
     }
     drop(strip);
+    let mut warnings = Vec::new();
+    if let Some((at, message)) = &cut {
+        // Keep only targets wholly in the rows that decoded.
+        found.retain(|d| d.center.1 + 0.5 * d.size_px + 2.0 < *at as f64);
+        warnings.push(format!(
+            "partial: rows {at}..{h} do not decode ({message}); targets from rows 0..{at} only"
+        ));
+    }
     dedup::remove_duplicates(&mut found);
 
-    let mut warnings = Vec::new();
     let (world, lonlat) = georeference(&header, &found, &options.crs, transformer, &mut warnings);
     let targets = found
         .into_iter()

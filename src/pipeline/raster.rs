@@ -57,6 +57,15 @@ pub enum RasterError {
         end: usize,
         message: String,
     },
+    /// The rows from `row` on do not decode (a file cut off or damaged
+    /// part-way); `read` rows of the request were delivered before it.
+    #[error("the frame does not decode from row {row} of {height} on: {message}")]
+    CutOff {
+        row: usize,
+        height: usize,
+        read: usize,
+        message: String,
+    },
 }
 
 /// Sample type GDAL converts pixels to while reading.
@@ -316,30 +325,72 @@ impl RasterFrame {
             let bytes = w * n * nb * self.header.sample_bytes;
             let y = self.next_row;
             let raw = &mut bytemuck_f32(&mut chunk)[..bytes];
-            self.raster_io(y, w, n, w, n, raw)?;
-            let dst = &mut out[done * w..(done + n) * w];
-            match self.kind {
-                SampleKind::U8 => grey_u8_rows(raw, dst, nb),
-                SampleKind::F32 => {
-                    let stretch = self.stretch.expect("prepare_stretch runs before read_rows");
-                    let samples = &chunk[..bytes / 4];
-                    let plane = w * n;
-                    for (i, px) in dst.iter_mut().enumerate() {
-                        let g = grey_f32(samples, i, plane, nb);
-                        let v = (g - stretch.low) * stretch.scale;
-                        *px = if v.is_finite() {
-                            v.round().clamp(0.0, 255.0) as u8
-                        } else {
-                            0
-                        };
-                    }
-                }
+            if let Err(e) = self.raster_io(y, w, n, w, n, raw) {
+                // Which of these rows still decode, one at a time: a file
+                // cut off part-way keeps the rows before the cut.
+                let good = self.rows_that_decode(y, n, &mut chunk, &mut out[done * w..]);
+                self.chunk = chunk;
+                self.next_row = y + good;
+                return Err(RasterError::CutOff {
+                    row: y + good,
+                    height: self.header.height,
+                    read: done + good,
+                    message: match e {
+                        RasterError::Decode { message, .. } => message,
+                        other => other.to_string(),
+                    },
+                });
             }
+            self.to_grey(&chunk, n, &mut out[done * w..(done + n) * w]);
             self.next_row += n;
             done += n;
         }
         self.chunk = chunk;
         Ok(())
+    }
+
+    /// Reads rows `y..y + n` one by one into `out` until one fails; the
+    /// number read.
+    fn rows_that_decode(&self, y: usize, n: usize, chunk: &mut [f32], out: &mut [u8]) -> usize {
+        let w = self.header.width;
+        let bytes = w * self.header.bands.len() * self.header.sample_bytes;
+        for k in 0..n {
+            let raw = &mut bytemuck_f32(chunk)[..bytes];
+            if self.raster_io(y + k, w, 1, w, 1, raw).is_err() {
+                return k;
+            }
+            self.to_grey(chunk, 1, &mut out[k * w..(k + 1) * w]);
+        }
+        n
+    }
+
+    /// Grey bytes of `n` rows read band-sequentially into `chunk`.
+    fn to_grey(&self, chunk: &[f32], n: usize, dst: &mut [u8]) {
+        let w = self.header.width;
+        let nb = self.header.bands.len();
+        match self.kind {
+            SampleKind::U8 => {
+                // SAFETY: a view of the same f32 storage as bytes.
+                let raw = unsafe {
+                    std::slice::from_raw_parts(chunk.as_ptr() as *const u8, chunk.len() * 4)
+                };
+                grey_u8_rows(&raw[..w * n * nb], dst, nb)
+            }
+            SampleKind::F32 => {
+                let stretch = self.stretch.expect("prepare_stretch runs before read_rows");
+                let plane = w * n;
+                let samples = &chunk[..plane * nb];
+                for (i, px) in dst.iter_mut().enumerate() {
+                    let g = grey_f32(samples, i, plane, nb);
+                    let v = (g - stretch.low) * stretch.scale;
+                    *px = if v.is_finite() {
+                        v.round().clamp(0.0, 255.0) as u8
+                    } else {
+                        0
+                    };
+                }
+            }
+        }
     }
 
     /// One `GDALDatasetRasterIO` call for all selected bands, band-sequential.

@@ -92,9 +92,22 @@ fn jpeg(f: &mut File) -> Option<u64> {
     None
 }
 
-/// A compressed striped TIFF's whole decompressed strip plus its
-/// compressed read buffer; 0 when tiled, uncompressed or one row a strip.
-fn tiff(f: &mut File, head: &[u8; 16]) -> Option<u64> {
+/// One entry of a TIFF image file directory: its tag, and its first value
+/// when that is a SHORT, LONG or LONG8 (inline or, for BitsPerSample and
+/// the like, the first of several at their offset).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TiffEntry {
+    pub tag: u16,
+    pub value: u64,
+}
+
+/// The entries of a TIFF's or BigTIFF's first image file directory, read
+/// with bounded reads from known offsets (at most 4096 entries). `head` is
+/// the file's first 16 bytes.
+pub fn first_ifd(f: &mut File, head: &[u8]) -> Result<Vec<TiffEntry>, String> {
+    if head.len() < 16 {
+        return Err("the TIFF header is cut short".into());
+    }
     let le = head[0] == b'I';
     let u16_at = |b: &[u8]| {
         let a = [b[0], b[1]];
@@ -120,18 +133,19 @@ fn tiff(f: &mut File, head: &[u8; 16]) -> Option<u64> {
             u64::from_be_bytes(a)
         }
     };
+    let cut = || "the header is cut short".to_string();
     let big = match u16_at(&head[2..4]) {
         42 => false,
         43 => true,
-        _ => return None,
+        _ => return Err("not a TIFF".into()),
     };
-    let (ifd, count_len, entry_len) = if big {
-        (u64_at(&head[8..16]), 8u64, 20u64)
+    let (ifd, count_len, entry_len, inline) = if big {
+        (u64_at(&head[8..16]), 8u64, 20u64, 8u64)
     } else {
-        (u32_at(&head[4..8]) as u64, 2, 12)
+        (u32_at(&head[4..8]) as u64, 2, 12, 4)
     };
     let mut count = [0u8; 8];
-    read_at(f, ifd, &mut count[..count_len as usize])?;
+    read_at(f, ifd, &mut count[..count_len as usize]).ok_or_else(cut)?;
     let entries = if big {
         u64_at(&count)
     } else {
@@ -139,43 +153,58 @@ fn tiff(f: &mut File, head: &[u8; 16]) -> Option<u64> {
     }
     .min(4096);
     let mut table = vec![0u8; (entries * entry_len) as usize];
-    read_at(f, ifd + count_len, &mut table)?;
-    let (mut width, mut height, mut rows_per_strip) = (0u64, 0u64, 0u64);
-    let (mut compression, mut samples, mut bits, mut tiled) = (1u64, 1u64, 8u64, false);
+    read_at(f, ifd + count_len, &mut table).ok_or_else(cut)?;
+    let mut out = Vec::new();
     for e in table.chunks(entry_len as usize) {
         let tag = u16_at(&e[0..2]);
         let kind = u16_at(&e[2..4]);
-        let value = if big { &e[12..20] } else { &e[8..12] };
-        // The first value of the entry (inline for the tags read here,
-        // BitsPerSample's first short inline too for up to 2 samples, and
-        // its others are the same in the frames we read).
-        let v = match kind {
-            3 => u16_at(value) as u64,
-            4 => u32_at(value) as u64,
-            16 => u64_at(value),
+        let n = if big {
+            u64_at(&e[4..12])
+        } else {
+            u32_at(&e[4..8]) as u64
+        };
+        let field = if big { &e[12..20] } else { &e[8..12] };
+        let size = match kind {
+            3 => 2,
+            4 => 4,
+            16 => 8,
             _ => continue,
         };
-        match tag {
-            256 => width = v,
-            257 => height = v,
-            258 => {
-                let n = if big {
-                    u64_at(&e[4..12])
-                } else {
-                    u32_at(&e[4..8]) as u64
-                };
-                let inline = n * 2 <= if big { 8 } else { 4 };
-                if inline {
-                    bits = v;
-                } else {
-                    let mut b = [0u8; 2];
-                    read_at(f, v, &mut b)?;
-                    bits = u16_at(&b) as u64;
-                }
-            }
-            259 => compression = v,
-            277 => samples = v,
-            278 => rows_per_strip = v,
+        let mut at_offset = [0u8; 8];
+        let bytes: &[u8] = if n.saturating_mul(size) <= inline {
+            field
+        } else {
+            let offset = if big {
+                u64_at(field)
+            } else {
+                u32_at(field) as u64
+            };
+            read_at(f, offset, &mut at_offset[..size as usize]).ok_or_else(cut)?;
+            &at_offset
+        };
+        let value = match kind {
+            3 => u16_at(bytes) as u64,
+            4 => u32_at(bytes) as u64,
+            _ => u64_at(bytes),
+        };
+        out.push(TiffEntry { tag, value });
+    }
+    Ok(out)
+}
+
+/// A compressed striped TIFF's whole decompressed strip plus its
+/// compressed read buffer; 0 when tiled, uncompressed or one row a strip.
+fn tiff(f: &mut File, head: &[u8; 16]) -> Option<u64> {
+    let (mut width, mut height, mut rows_per_strip) = (0u64, 0u64, 0u64);
+    let (mut compression, mut samples, mut bits, mut tiled) = (1u64, 1u64, 8u64, false);
+    for e in first_ifd(f, head).ok()? {
+        match e.tag {
+            256 => width = e.value,
+            257 => height = e.value,
+            258 => bits = e.value,
+            259 => compression = e.value,
+            277 => samples = e.value,
+            278 => rows_per_strip = e.value,
             322 | 323 => tiled = true,
             _ => {}
         }

@@ -8,6 +8,8 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
+use crate::pipeline::layout::first_ifd;
+
 /// Limits on what a frame may claim.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PixelLimits {
@@ -131,67 +133,10 @@ fn jpeg(f: &mut File) -> Result<(u32, u32), String> {
 
 /// ImageWidth (256) and ImageLength (257) of a TIFF's or BigTIFF's first IFD.
 fn tiff(f: &mut File, head: &[u8]) -> Result<(u32, u32), String> {
-    if head.len() < 16 {
-        return Err("the TIFF header is cut short".into());
-    }
-    let le = head[0] == b'I';
-    let u16_at = |b: &[u8]| {
-        let a = [b[0], b[1]];
-        if le {
-            u16::from_le_bytes(a)
-        } else {
-            u16::from_be_bytes(a)
-        }
-    };
-    let u32_at = |b: &[u8]| {
-        let a = [b[0], b[1], b[2], b[3]];
-        if le {
-            u32::from_le_bytes(a)
-        } else {
-            u32::from_be_bytes(a)
-        }
-    };
-    let u64_at = |b: &[u8]| {
-        let a: [u8; 8] = b[..8].try_into().expect("8 bytes");
-        if le {
-            u64::from_le_bytes(a)
-        } else {
-            u64::from_be_bytes(a)
-        }
-    };
-    let big = match u16_at(&head[2..4]) {
-        42 => false,
-        43 => true,
-        _ => return Err("not a TIFF".into()),
-    };
-    let (ifd, count_len, entry_len) = if big {
-        (u64_at(&head[8..16]), 8u64, 20u64)
-    } else {
-        (u32_at(&head[4..8]) as u64, 2, 12)
-    };
-    let mut count = [0u8; 8];
-    read_exact_at(f, ifd, &mut count[..count_len as usize])?;
-    let entries = if big {
-        u64_at(&count)
-    } else {
-        u16_at(&count) as u64
-    }
-    .min(4096);
-    let mut table = vec![0u8; (entries * entry_len) as usize];
-    read_exact_at(f, ifd + count_len, &mut table)?;
     let (mut w, mut h) = (None, None);
-    for e in table.chunks(entry_len as usize) {
-        let tag = u16_at(&e[0..2]);
-        let kind = u16_at(&e[2..4]);
-        let value = if big { &e[12..20] } else { &e[8..12] };
-        let v = match kind {
-            3 => u16_at(value) as u64,
-            4 => u32_at(value) as u64,
-            16 => u64_at(value),
-            _ => continue,
-        };
-        let v = u32::try_from(v).unwrap_or(u32::MAX);
-        let (slot, name) = match tag {
+    for e in first_ifd(f, head)? {
+        let v = u32::try_from(e.value).unwrap_or(u32::MAX);
+        let (slot, name) = match e.tag {
             256 => (&mut w, "ImageWidth"),
             257 => (&mut h, "ImageLength"),
             _ => continue,

@@ -48,6 +48,28 @@ fn noise_frame(dir: &Path) -> PathBuf {
     path
 }
 
+/// Submits `first` then `rest` as a flight (`query` after the CRS) and
+/// waits until `first`'s worker process runs; its flight and job ids.
+fn flight_with_running_first(
+    server: &Server,
+    first: &Path,
+    rest: &[PathBuf],
+    query: &str,
+) -> (String, String) {
+    let mut upload: Vec<&Path> = vec![first];
+    upload.extend(rest.iter().map(|p| p.as_path()));
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}{query}"), &upload);
+    assert_eq!(r.status(), 201);
+    let flight: Value = r.json().unwrap();
+    let id = flight["flight"]["id"].as_str().unwrap().to_string();
+    let name = first.file_name().unwrap().to_string_lossy();
+    let job = job_id(server, &id, &name);
+    wait_until("the first frame's worker", || {
+        !server.worker_pids(&job).is_empty()
+    });
+    (id, job)
+}
+
 fn jobs_of(server: &Server, flight: &str) -> Vec<Value> {
     server.get_json(&format!("/v1/flights/{flight}/jobs"))["items"]
         .as_array()
@@ -83,18 +105,8 @@ fn kill_9_mid_flight_then_restart_completes_every_job_once() {
     let big = big_frame(dir.path(), "big_0.jpg");
     let data = dir.path().join("d");
     let mut server = Server::start(&data, &["--workers", "1"]);
-    let mut upload: Vec<&Path> = vec![big.as_path()];
-    upload.extend(frames.iter().map(|p| p.as_path()));
-    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
-    assert_eq!(r.status(), 201);
-    let flight: Value = r.json().unwrap();
-    let id = flight["flight"]["id"].as_str().unwrap().to_string();
-
     // Kill the server while the big frame's worker runs.
-    let big_job = job_id(&server, &id, "big_0.jpg");
-    wait_until("the big frame's worker", || {
-        !server.worker_pids(&big_job).is_empty()
-    });
+    let (id, big_job) = flight_with_running_first(&server, &big, frames, "");
     let orphan = server.worker_pids(&big_job)[0];
     server.kill9();
     // The worker process dies with the server.
@@ -264,16 +276,7 @@ fn a_second_server_on_the_same_data_folder_refuses_to_start() {
     let big = big_frame(dir.path(), "big_0.jpg");
     let data = dir.path().join("d");
     let server = Server::start(&data, &["--workers", "1"]);
-    let mut upload: Vec<&Path> = vec![big.as_path()];
-    upload.extend(frames.iter().map(|p| p.as_path()));
-    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
-    assert_eq!(r.status(), 201);
-    let flight: Value = r.json().unwrap();
-    let id = flight["flight"]["id"].as_str().unwrap().to_string();
-    let big_job = job_id(&server, &id, "big_0.jpg");
-    wait_until("the big frame's worker", || {
-        !server.worker_pids(&big_job).is_empty()
-    });
+    let (id, _) = flight_with_running_first(&server, &big, frames, "");
 
     // What a supervisor restarting during the shutdown grace does.
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
@@ -317,16 +320,7 @@ fn a_queued_frame_over_a_lowered_size_limit_fails_when_its_worker_opens_it() {
     let big = big_frame(dir.path(), "big_0.jpg");
     let data = dir.path().join("d");
     let mut server = Server::start(&data, &["--workers", "1"]);
-    let mut upload: Vec<&Path> = vec![big.as_path()];
-    upload.extend(frames.iter().map(|p| p.as_path()));
-    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
-    assert_eq!(r.status(), 201);
-    let flight: Value = r.json().unwrap();
-    let id = flight["flight"]["id"].as_str().unwrap().to_string();
-    let big_job = job_id(&server, &id, "big_0.jpg");
-    wait_until("the big frame's worker", || {
-        !server.worker_pids(&big_job).is_empty()
-    });
+    let (id, _) = flight_with_running_first(&server, &big, frames, "");
     server.kill9();
 
     // Restarted with a limit under the queued 48 MP frame: the size the
@@ -350,17 +344,8 @@ fn during_the_shutdown_grace_readiness_is_503_and_new_work_is_refused() {
     let big = noise_frame(dir.path());
     let data = dir.path().join("d");
     let mut server = Server::start(&data, &["--workers", "1", "--shutdown-grace-secs", "60"]);
-    let r = server.post_files(
-        &format!("/v1/flights?crs={CRS}&marker_types=apriltag,crosshair"),
-        &[big.as_path()],
-    );
-    assert_eq!(r.status(), 201);
-    let flight: Value = r.json().unwrap();
-    let id = flight["flight"]["id"].as_str().unwrap().to_string();
-    let big_job = job_id(&server, &id, "noise.jpg");
-    wait_until("the frame's worker", || {
-        !server.worker_pids(&big_job).is_empty()
-    });
+    let (_, big_job) =
+        flight_with_running_first(&server, &big, &[], "&marker_types=apriltag,crosshair");
     assert_eq!(server.get("/readyz").status(), 200);
 
     // SIGTERM while the job runs: the listener stays for the grace.
@@ -396,19 +381,8 @@ fn a_full_disk_pauses_jobs_and_they_finish_once_space_returns() {
     let data = dir.path().join("d");
     let server =
         Server::start_on_small_disk(&data, 256, &["--workers", "1", "--min-free-disk-mb", "64"]);
-    let mut upload: Vec<&Path> = vec![noise.as_path()];
-    upload.extend(frames.iter().map(|p| p.as_path()));
-    let r = server.post_files(
-        &format!("/v1/flights?crs={CRS}&marker_types=apriltag,crosshair"),
-        &upload,
-    );
-    assert_eq!(r.status(), 201);
-    let flight: Value = r.json().unwrap();
-    let id = flight["flight"]["id"].as_str().unwrap().to_string();
-    let noise_job = job_id(&server, &id, "noise.jpg");
-    wait_until("the noise frame's worker", || {
-        !server.worker_pids(&noise_job).is_empty()
-    });
+    let (id, _) =
+        flight_with_running_first(&server, &noise, frames, "&marker_types=apriltag,crosshair");
 
     // Fill the server's disk to the last byte while the job runs.
     let filler = server.own_path(&data.join("filler"));

@@ -169,7 +169,6 @@ impl Server {
     /// Resident memory of the server and its worker processes together,
     /// in KiB (VmRSS of each, from /proc).
     pub fn tree_rss_kib(&self) -> u64 {
-        let server = self.pid();
         let rss = |pid: u32| -> u64 {
             std::fs::read_to_string(format!("/proc/{pid}/status"))
                 .unwrap_or_default()
@@ -178,50 +177,39 @@ impl Server {
                 .and_then(|v| v.split_whitespace().next()?.parse().ok())
                 .unwrap_or(0)
         };
-        let mut total = rss(server);
-        for entry in std::fs::read_dir("/proc").unwrap().flatten() {
-            let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-                continue;
-            };
-            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-            let ppid = stat
-                .rsplit_once(')')
-                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-                .and_then(|p| p.parse::<u32>().ok());
-            if ppid == Some(server) {
-                total += rss(pid);
-            }
-        }
-        total
+        rss(self.pid()) + self.children().into_iter().map(rss).sum::<u64>()
+    }
+
+    /// The server's child processes (its workers), from /proc.
+    fn children(&self) -> Vec<u32> {
+        let server = self.pid();
+        std::fs::read_dir("/proc")
+            .unwrap()
+            .flatten()
+            .filter_map(|entry| entry.file_name().to_string_lossy().parse::<u32>().ok())
+            .filter(|pid| {
+                let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+                // ppid is the 4th field, after the parenthesised command name.
+                stat.rsplit_once(')')
+                    .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+                    .and_then(|p| p.parse::<u32>().ok())
+                    == Some(server)
+            })
+            .collect()
     }
 
     pub fn worker_pids(&self, job: &str) -> Vec<u32> {
-        let server = self.pid();
-        let mut pids = Vec::new();
-        for entry in std::fs::read_dir("/proc").unwrap().flatten() {
-            let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-                continue;
-            };
-            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-            // ppid is the 4th field, after the parenthesised command name.
-            let ppid = stat
-                .rsplit_once(')')
-                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-                .and_then(|p| p.parse::<u32>().ok());
-            if ppid != Some(server) {
-                continue;
-            }
-            let Ok(fds) = std::fs::read_dir(format!("/proc/{pid}/fd")) else {
-                continue;
-            };
-            let has_frame = fds.flatten().any(|fd| {
-                std::fs::read_link(fd.path()).is_ok_and(|t| t.to_string_lossy().contains(job))
-            });
-            if has_frame {
-                pids.push(pid);
-            }
-        }
-        pids
+        self.children()
+            .into_iter()
+            .filter(|pid| {
+                std::fs::read_dir(format!("/proc/{pid}/fd")).is_ok_and(|fds| {
+                    fds.flatten().any(|fd| {
+                        std::fs::read_link(fd.path())
+                            .is_ok_and(|t| t.to_string_lossy().contains(job))
+                    })
+                })
+            })
+            .collect()
     }
 
     /// Sends SIGTERM and waits for the process to end.

@@ -77,7 +77,7 @@ pub struct RingBasis {
 impl RingBasis {
     /// A basis for `n` samples, `n` divisible by 4.
     pub fn new(n: usize) -> RingBasis {
-        assert!(n >= 8 && n % 4 == 0, "ring of {n} samples");
+        assert!(n >= 8 && n.is_multiple_of(4), "ring of {n} samples");
         let h = |k: f64| {
             (0..n)
                 .map(|i| {

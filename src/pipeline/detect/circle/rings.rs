@@ -31,7 +31,7 @@ impl RingLayout {
     /// Expected sign of edge `k` (+1: lighter outside).
     fn sign(&self, k: usize) -> f64 {
         let first = if self.dark_centre { 1.0 } else { -1.0 };
-        if k % 2 == 0 {
+        if k.is_multiple_of(2) {
             first
         } else {
             -first

@@ -330,9 +330,9 @@ impl PrintedDetector {
             // arms; a marking lies in one quadrant, beside one arm of each
             // line) is the bar's own width.
             if design.kind == DesignKind::Cross {
-                for l in 0..2 {
-                    measured[l] = on_line(&arms, l, |a| &a.widths);
-                    let own = pr::quantile(&measured[l], 0.25);
+                for (l, widths) in measured.iter_mut().enumerate() {
+                    *widths = on_line(&arms, l, |a| &a.widths);
+                    let own = pr::quantile(widths, 0.25);
                     let most = own * (1.0 + p.max_widening) + 0.5;
                     for arm in [l, l + 2] {
                         let arm = &mut arms[arm];

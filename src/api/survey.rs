@@ -18,8 +18,35 @@ use crate::storage::s3::content_type;
 use crate::survey::export::{bundle, BUNDLE, FILES};
 use crate::survey::{Role, Survey};
 
-/// Largest survey file accepted.
+/// Largest survey or assignment file accepted.
 const MAX_SURVEY_BYTES: usize = 4 << 20;
+
+/// An uploaded text file (`what`: "survey", "assignment file"), at most
+/// [`MAX_SURVEY_BYTES`] of UTF-8; `invalid` is the code for other bytes.
+fn text_body(body: &Bytes, what: &str, invalid: &'static str) -> Result<String, ApiError> {
+    if body.len() > MAX_SURVEY_BYTES {
+        return Err(ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "request_too_large",
+            format!("a {what} is at most {MAX_SURVEY_BYTES} bytes"),
+        ));
+    }
+    String::from_utf8(body.to_vec()).map_err(|e| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            invalid,
+            format!("the {what} is not UTF-8 text: {e}"),
+        )
+    })
+}
+
+fn no_survey(id: Uuid) -> ApiError {
+    ApiError::new(
+        StatusCode::NOT_FOUND,
+        "no_survey",
+        format!("flight {id} has no survey: PUT /v1/flights/{id}/survey"),
+    )
+}
 
 /// A flight's survey, as parsed.
 #[derive(Debug, Serialize, utoipa::ToSchema)]
@@ -94,20 +121,7 @@ pub async fn put_survey(
     if state.store.flight(id).is_none() {
         return Err(ApiError::not_found("flight", id));
     }
-    if body.len() > MAX_SURVEY_BYTES {
-        return Err(ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "request_too_large",
-            format!("a survey file is at most {MAX_SURVEY_BYTES} bytes"),
-        ));
-    }
-    let text = String::from_utf8(body.to_vec()).map_err(|e| {
-        ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "invalid_survey",
-            format!("the survey is not UTF-8 text: {e}"),
-        )
-    })?;
+    let text = text_body(&body, "survey", "invalid_survey")?;
     // A new survey starts without assignments: they named the old one's points.
     let stored = StoredSurvey {
         crs,
@@ -149,26 +163,15 @@ pub async fn put_assignments(
     IdPath(id): IdPath,
     body: Bytes,
 ) -> Result<Json<AssignmentsSummary>, ApiError> {
-    if body.len() > MAX_SURVEY_BYTES {
-        return Err(ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "request_too_large",
-            format!("an assignment file is at most {MAX_SURVEY_BYTES} bytes"),
-        ));
+    let text = text_body(&body, "assignment file", "invalid_assignments")?;
+    if state.store.flight(id).is_none() {
+        return Err(ApiError::not_found("flight", id));
     }
-    let text = String::from_utf8(body.to_vec()).map_err(|e| {
-        ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "invalid_assignments",
-            format!("the assignments are not UTF-8 text: {e}"),
-        )
-    })?;
-    flight_survey(&state, id).await?;
     let data = state.data.clone();
     tokio::task::spawn_blocking(move || {
         let mut stored = gcp::load_survey(&data, id)
             .map_err(|e| ApiError::internal("reading the survey", e))?
-            .ok_or_else(|| ApiError::internal("reading the survey", "it went away"))?;
+            .ok_or_else(|| no_survey(id))?;
         stored.assignments = Some(text);
         let survey = stored.parse().map_err(|e| {
             ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_assignments", e.0)
@@ -216,13 +219,7 @@ async fn flight_survey(state: &AppState, id: Uuid) -> Result<Survey, ApiError> {
         .await
         .map_err(|e| ApiError::internal("reading the survey", e))?
         .map_err(|e| ApiError::internal("reading the survey", e))?
-        .ok_or_else(|| {
-            ApiError::new(
-                StatusCode::NOT_FOUND,
-                "no_survey",
-                format!("flight {id} has no survey: PUT /v1/flights/{id}/survey"),
-            )
-        })?;
+        .ok_or_else(|| no_survey(id))?;
     stored
         .parse()
         .map_err(|e| ApiError::internal("parsing the stored survey", e))

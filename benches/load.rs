@@ -35,6 +35,7 @@ fn main() {
         markers: 8,
         kind: FileKind::Jpeg,
         seed: 21,
+        hard: false,
     };
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("load-frames");
     if !dir.join("truth.csv").exists() {

@@ -1,16 +1,21 @@
 //! Throughput, peak memory and accuracy of `gcp-tagger detect` on generated
-//! flights: 4000x3000 JPEG frames and 8000x6000 JPEG frames.
+//! flights: 4000x3000 JPEG frames and 8000x6000 JPEG frames; then AprilTag's
+//! hard cases (tags of 18-60 px, motion blur, hard shadows across tags,
+//! 16-bit GeoTIFF) side by side with the AprilTag 3 reference detector
+//! (pupil-apriltags from PyPI, installed by `scripts/apriltag-peer.sh`)
+//! over the same frames in the same run.
 //!
 //! Run: `cargo bench --bench throughput` (frames are generated once into
 //! the target folder and reused). Under `cargo test` it does nothing.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::process::Command;
 
 use gcp_tagger::synth::{FileKind, FlightSpec};
 
 mod common;
-use common::{generate, run_detect};
+use common::{generate, run_detect, run_measured};
 
 struct Set {
     name: &'static str,
@@ -33,6 +38,7 @@ fn main() {
                 markers: 8,
                 kind: FileKind::Jpeg,
                 seed: 11,
+                hard: false,
             },
         },
         Set {
@@ -44,6 +50,7 @@ fn main() {
                 markers: 12,
                 kind: FileKind::Jpeg,
                 seed: 12,
+                hard: false,
             },
         },
     ];
@@ -105,6 +112,197 @@ fn main() {
             rss_kib as f64 / 1024.0
         );
     }
+
+    hard_cases(&root);
+}
+
+/// AprilTag's hard cases, ours against the reference detector at its
+/// decimations 2 (its speed setting) and 1 (its best recall), 2 threads each.
+fn hard_cases(root: &Path) {
+    let sets = [
+        Set {
+            name: "hard 4000x3000 JPEG",
+            spec: FlightSpec {
+                frames: 12,
+                width: 4000,
+                height: 3000,
+                markers: 14,
+                kind: FileKind::Jpeg,
+                seed: 13,
+                hard: true,
+            },
+        },
+        Set {
+            name: "hard 4000x3000 16-bit GeoTIFF",
+            spec: FlightSpec {
+                frames: 4,
+                width: 4000,
+                height: 3000,
+                markers: 14,
+                kind: FileKind::Gtiff16,
+                seed: 14,
+                hard: true,
+            },
+        },
+    ];
+    let peer = Command::new("bash")
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scripts/apriltag-peer.sh"
+        ))
+        .output()
+        .expect("run scripts/apriltag-peer.sh");
+    assert!(peer.status.success(), "scripts/apriltag-peer.sh failed");
+    let python = String::from_utf8(peer.stdout).unwrap().trim().to_string();
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/apriltag-peer.py");
+
+    println!();
+    println!("| hard set | detector | recall | centre median px | p95 px | wrong ids | false | MP/s | peak RSS MiB |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let mut totals: HashMap<&str, (usize, usize, f64, f64)> = HashMap::new();
+    for set in &sets {
+        let dir = root.join(format!(
+            "hard-{}x{}-{}-{}",
+            set.spec.width, set.spec.height, set.spec.frames, set.spec.kind
+        ));
+        if !dir.join("truth.csv").exists() {
+            eprintln!("generating {} into {}", set.name, dir.display());
+            generate(&dir, &set.spec);
+        }
+        let mp = (set.spec.width * set.spec.height * set.spec.frames) as f64 / 1e6;
+        let truth = dir.join("truth.csv");
+        // Who runs, and the reference detector's decimation.
+        let runs = [
+            ("gcp-tagger", None),
+            ("AprilTag 3, decimate 2", Some("2")),
+            ("AprilTag 3, decimate 1", Some("1")),
+        ];
+        for (i, (who, decimate)) in runs.into_iter().enumerate() {
+            let out = dir.with_extension(format!("hard{i}.csv"));
+            let (seconds, rss_kib) = match decimate {
+                None => run_detect(&dir, &out, &["--threads", "2"]),
+                Some(d) => run_peer(&python, script, &dir, &out, d),
+            };
+            let s = score(&truth, &out);
+            let total = totals.entry(who).or_default();
+            total.0 += s.found;
+            total.1 += s.truth;
+            total.2 += mp;
+            total.3 += seconds;
+            println!(
+                "| {} x{} | {who} | {:.3} | {:.3} | {:.3} | {} | {} | {:.1} | {:.0} |",
+                set.name,
+                set.spec.frames,
+                s.found as f64 / s.truth as f64,
+                s.median,
+                s.p95,
+                s.wrong_ids,
+                s.false_positives,
+                mp / seconds,
+                rss_kib as f64 / 1024.0
+            );
+        }
+    }
+    println!();
+    let ours = totals["gcp-tagger"];
+    for who in [
+        "gcp-tagger",
+        "AprilTag 3, decimate 2",
+        "AprilTag 3, decimate 1",
+    ] {
+        let t = totals[who];
+        println!(
+            "{who}: recall {:.3} over all hard frames, {:.1} MP/s; gcp-tagger's speed {:.2}x",
+            t.0 as f64 / t.1 as f64,
+            t.2 / t.3,
+            (ours.2 / ours.3) / (t.2 / t.3)
+        );
+    }
+}
+
+/// The reference detector over `dir` (see scripts/apriltag-peer.py).
+fn run_peer(python: &str, script: &str, dir: &Path, out: &Path, decimate: &str) -> (f64, i64) {
+    let mut command = Command::new(python);
+    command
+        .arg(script)
+        .arg(dir)
+        .arg(out)
+        .args(["--decimate", decimate, "--threads", "2"]);
+    run_measured(command)
+}
+
+/// A detector's output against the truth: a detection within 5 px of a
+/// true centre with that id is found (the nearest one), with another id a
+/// wrong id; one near no true centre is false.
+struct Score {
+    truth: usize,
+    found: usize,
+    median: f64,
+    p95: f64,
+    wrong_ids: usize,
+    false_positives: usize,
+}
+
+fn score(truth: &Path, out: &Path) -> Score {
+    let truth = read_centres(truth);
+    let found = read_centres(out);
+    let mut errors = Vec::new();
+    for (img, id, x, y) in &truth {
+        let best = found
+            .iter()
+            .filter(|(i, d, _, _)| i == img && d == id)
+            .map(|(_, _, fx, fy)| (fx - x).hypot(fy - y))
+            .filter(|d| *d < 5.0)
+            .reduce(f64::min);
+        errors.extend(best);
+    }
+    let (mut wrong_ids, mut false_positives) = (0, 0);
+    for (img, id, fx, fy) in &found {
+        let near: Vec<_> = truth
+            .iter()
+            .filter(|(i, _, x, y)| i == img && (fx - x).hypot(fy - y) < 5.0)
+            .collect();
+        if near.is_empty() {
+            false_positives += 1;
+        } else if near.iter().all(|(_, t, _, _)| t != id) {
+            wrong_ids += 1;
+        }
+    }
+    errors.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        if errors.is_empty() {
+            f64::NAN
+        } else {
+            errors[((errors.len() - 1) as f64 * p).round() as usize]
+        }
+    };
+    Score {
+        truth: truth.len(),
+        found: errors.len(),
+        median: q(0.5),
+        p95: q(0.95),
+        wrong_ids,
+        false_positives,
+    }
+}
+
+/// (image, id, x, y) of each row of a CSV with image, marker_type,
+/// marker_id, px_x, px_y first.
+fn read_centres(p: &Path) -> Vec<(String, String, f64, f64)> {
+    std::fs::read_to_string(p)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (
+                f[0].to_string(),
+                f[2].to_string(),
+                f[3].parse().unwrap(),
+                f[4].parse().unwrap(),
+            )
+        })
+        .collect()
 }
 
 /// Recall and centre-error quantiles of `out` against `truth` (both CSV,

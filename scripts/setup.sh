@@ -3,12 +3,12 @@
 # Idempotent; runs as root directly, through sudo otherwise.
 set -euo pipefail
 
-# Native libraries (OpenCV 4.6 + contrib for aruco, GDAL, PROJ), libclang for the
+# Native libraries (OpenCV 4.6 + contrib for aruco, libapriltag 3 for AprilTags, GDAL, PROJ), libclang for the
 # opencv binding generator, and the command-line tools the tests compare against
 # (gdaltransform, cs2cs).
 APT_PACKAGES=(
   libopencv-dev libopencv-contrib-dev libgdal-dev libproj-dev libclang-dev clang
-  pkg-config gdal-bin proj-bin
+  libapriltag-dev pkg-config gdal-bin proj-bin
 )
 
 missing=()

@@ -219,12 +219,16 @@ pub struct SampleArgs {
     /// Markers per frame.
     #[arg(long, default_value_t = 6)]
     pub markers: usize,
-    /// File format: jpeg, png or gtiff (gtiff carries a UTM georeference).
+    /// File format: jpeg, png, gtiff or gtiff16 (16-bit R, G, B, NIR); the
+    /// GeoTIFFs carry a UTM georeference.
     #[arg(long, default_value = "gtiff")]
     pub kind: synth::FileKind,
     /// Seed of the deterministic generator.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Hard cases: tags of 18-60 px, motion blur, hard shadows across tags.
+    #[arg(long)]
+    pub hard: bool,
 }
 
 /// Runs `detect`; returns the process exit code.
@@ -525,6 +529,7 @@ pub fn sample(args: SampleArgs) -> ExitCode {
         markers: args.markers,
         kind: args.kind,
         seed: args.seed,
+        hard: args.hard,
     };
     match synth::write_flight(&args.out, &spec) {
         Ok(n) => {

@@ -32,6 +32,7 @@ pub fn generate(dir: &Path, spec: &FlightSpec) {
             "--seed",
             &spec.seed.to_string(),
         ])
+        .args(spec.hard.then_some("--hard"))
         .status()
         .expect("run gcp-tagger sample");
     assert!(status.success(), "sample generation failed");
@@ -41,23 +42,29 @@ pub fn generate(dir: &Path, spec: &FlightSpec) {
 /// (the release binary); returns wall seconds and the child's peak RSS in
 /// KiB (from wait4's rusage).
 pub fn run_detect(dir: &Path, out: &Path, extra: &[&str]) -> (f64, i64) {
-    let start = Instant::now();
-    // Reaped by wait4 below (which also gives the peak RSS), not wait().
-    #[allow(clippy::zombie_processes)]
-    let child = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
+    let mut command = Command::new(env!("CARGO_BIN_EXE_gcp-tagger"));
+    command
         .arg("detect")
         .arg(dir)
         .args(["--crs", "EPSG:4326", "--quiet"])
         .args(extra)
         .arg("--output")
-        .arg(out)
-        .spawn()
-        .expect("spawn gcp-tagger");
+        .arg(out);
+    run_measured(command)
+}
+
+/// Runs `command`; returns wall seconds and the child's peak RSS in KiB
+/// (from wait4's rusage). Panics when it fails.
+pub fn run_measured(mut command: Command) -> (f64, i64) {
+    let start = Instant::now();
+    // Reaped by wait4 below (which also gives the peak RSS), not wait().
+    #[allow(clippy::zombie_processes)]
+    let child = command.spawn().expect("spawn");
     let mut status = 0;
     // SAFETY: plain libc call on our own child's pid with valid out-pointers.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
     assert_eq!(pid, child.id() as i32, "wait4");
-    assert_eq!(status, 0, "detect failed");
+    assert_eq!(status, 0, "{command:?} failed");
     (start.elapsed().as_secs_f64(), usage.ru_maxrss)
 }

@@ -59,6 +59,9 @@ pub enum FileKind {
     Png,
     /// 8-bit RGB GeoTIFF in UTM zone 11N.
     Gtiff,
+    /// 16-bit 4-band (R, G, B, NIR) GeoTIFF in UTM zone 11N, as
+    /// multispectral cameras write.
+    Gtiff16,
 }
 
 impl FileKind {
@@ -66,7 +69,7 @@ impl FileKind {
         match self {
             FileKind::Jpeg => "jpg",
             FileKind::Png => "png",
-            FileKind::Gtiff => "tif",
+            FileKind::Gtiff | FileKind::Gtiff16 => "tif",
         }
     }
 }
@@ -78,14 +81,20 @@ impl FromStr for FileKind {
             "jpeg" | "jpg" => Ok(FileKind::Jpeg),
             "png" => Ok(FileKind::Png),
             "gtiff" | "tif" | "tiff" => Ok(FileKind::Gtiff),
-            other => Err(format!("unknown sample kind {other:?} (jpeg, png, gtiff)")),
+            "gtiff16" => Ok(FileKind::Gtiff16),
+            other => Err(format!(
+                "unknown sample kind {other:?} (jpeg, png, gtiff, gtiff16)"
+            )),
         }
     }
 }
 
 impl fmt::Display for FileKind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.extension())
+        f.write_str(match self {
+            FileKind::Gtiff16 => "gtiff16",
+            other => other.extension(),
+        })
     }
 }
 
@@ -98,6 +107,8 @@ pub struct FlightSpec {
     pub markers: usize,
     pub kind: FileKind,
     pub seed: u64,
+    /// Frames of [`hard_scene`] instead of [`random_scene`].
+    pub hard: bool,
 }
 
 /// The georeference sample GeoTIFFs carry: UTM 11N, 2 cm pixels.
@@ -120,12 +131,78 @@ pub fn sample_geo(frame_index: usize) -> GeoSpec {
 /// and noise, a brightness gradient, shadows and clutter.
 pub fn random_scene(width: usize, height: usize, markers: usize, seed: u64) -> Scene {
     let mut rng = Rng::new(seed);
+    let markers = place_tags(width, height, markers, (30.0, 60.0), 0.06, seed, &mut rng);
+    Scene {
+        width,
+        height,
+        seed,
+        blur_sigma: 0.8,
+        noise_sigma: 3.0,
+        gradient: 0.25,
+        shadows: 2,
+        clutter: Clutter {
+            squares: 30,
+            circles: 20,
+            stripes: 6,
+            lookalikes: 0,
+        },
+        markers,
+        printed: Vec::new(),
+        motion_blur: (0.0, 0.0),
+        tag_shadows: 0.0,
+    }
+}
+
+/// The hard cases of aerial AprilTag frames: tags of 18-60 px (half of them
+/// under 40), perspective up to 10% of the side, defocus blur 0.6-1.3 px,
+/// motion blur of 1-3 px on half the frames, a hard-edged shadow across a
+/// third of the tags, noise 2-5 grey levels, shadows and clutter.
+pub fn hard_scene(width: usize, height: usize, markers: usize, seed: u64) -> Scene {
+    let mut rng = Rng::new(seed);
+    let markers = place_tags(width, height, markers, (18.0, 60.0), 0.1, seed, &mut rng);
+    let moving = rng.uniform() < 0.5;
+    Scene {
+        width,
+        height,
+        seed,
+        blur_sigma: rng.range(0.6, 1.3),
+        noise_sigma: rng.range(2.0, 5.0),
+        gradient: 0.3,
+        shadows: 2,
+        clutter: Clutter {
+            squares: 30,
+            circles: 20,
+            stripes: 6,
+            lookalikes: 0,
+        },
+        markers,
+        printed: Vec::new(),
+        motion_blur: if moving {
+            (rng.range(1.0, 3.0), rng.range(0.0, 180.0))
+        } else {
+            (0.0, 0.0)
+        },
+        tag_shadows: 1.0 / 3.0,
+    }
+}
+
+/// `count` AprilTag 36h11 markers of `sides` px at random positions, at
+/// least three sides apart.
+fn place_tags(
+    width: usize,
+    height: usize,
+    count: usize,
+    sides: (f64, f64),
+    perspective: f64,
+    seed: u64,
+    rng: &mut Rng,
+) -> Vec<MarkerSpec> {
     let family = AprilTagFamily::default();
     let mut specs: Vec<MarkerSpec> = Vec::new();
     let mut attempts = 0;
-    while specs.len() < markers && attempts < markers * 200 {
+    while specs.len() < count && attempts < count * 200 {
         attempts += 1;
-        let side = rng.range(30.0, 60.0);
+        let side = rng.range(sides.0, sides.1);
         let margin = side * 1.2;
         let c = (
             rng.range(margin, width as f64 - margin),
@@ -143,27 +220,10 @@ pub fn random_scene(width: usize, height: usize, markers: usize, seed: u64) -> S
             center: c,
             side_px: side,
             rotation_deg: rng.range(0.0, 360.0),
-            perspective: rng.range(0.0, 0.06),
+            perspective: rng.range(0.0, perspective),
         });
     }
-    Scene {
-        width,
-        height,
-        seed,
-        blur_sigma: 0.8,
-        noise_sigma: 3.0,
-        gradient: 0.25,
-        shadows: 2,
-        clutter: Clutter {
-            squares: 30,
-            circles: 20,
-            stripes: 6,
-            lookalikes: 0,
-        },
-        markers: specs,
-        printed: Vec::new(),
-        motion_blur: (0.0, 0.0),
-    }
+    specs
 }
 
 /// `count` cells laid over a frame in near-square rows and columns, one
@@ -268,6 +328,7 @@ pub fn printed_scene(
         } else {
             (0.0, 0.0)
         },
+        tag_shadows: 0.0,
     }
 }
 
@@ -291,6 +352,7 @@ pub fn clutter_scene(width: usize, height: usize, seed: u64) -> Scene {
         markers: Vec::new(),
         printed: Vec::new(),
         motion_blur: (0.0, 0.0),
+        tag_shadows: 0.0,
     }
 }
 
@@ -299,19 +361,20 @@ pub fn write_flight(dir: &Path, spec: &FlightSpec) -> Result<usize, String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
     let mut truth = String::from("image,marker_type,marker_id,px_x,px_y,size_px\n");
     for i in 0..spec.frames {
-        let scene = random_scene(
-            spec.width,
-            spec.height,
-            spec.markers,
-            spec.seed * 1000 + i as u64,
-        );
+        let seed = spec.seed * 1000 + i as u64;
+        let scene = if spec.hard {
+            hard_scene(spec.width, spec.height, spec.markers, seed)
+        } else {
+            random_scene(spec.width, spec.height, spec.markers, seed)
+        };
         let (image, truths) = render(&scene).map_err(|e| format!("rendering failed: {e}"))?;
         let name = format!("frame_{i:04}.{}", spec.kind.extension());
-        let geo = (spec.kind == FileKind::Gtiff).then(|| sample_geo(i));
+        let geo = matches!(spec.kind, FileKind::Gtiff | FileKind::Gtiff16).then(|| sample_geo(i));
         let format = match spec.kind {
             FileKind::Jpeg => SampleFormat::Jpeg,
             FileKind::Png => SampleFormat::Png,
             FileKind::Gtiff => SampleFormat::GtiffRgb8,
+            FileKind::Gtiff16 => SampleFormat::Gtiff16Rgbn,
         };
         write_image(&dir.join(&name), &image, format, geo.as_ref())
             .map_err(|e| format!("{name}: {e}"))?;

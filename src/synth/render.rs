@@ -86,6 +86,9 @@ pub struct Scene {
     pub printed: Vec<PrintedSpec>,
     /// Linear motion blur: length in pixels (0 = none) and direction in degrees.
     pub motion_blur: (f64, f64),
+    /// Share of the coded markers crossed by a hard-edged shadow (a pole's
+    /// or a branch's: a band through the tag, see `shadow_across`).
+    pub tag_shadows: f64,
 }
 
 /// Where a marker really is.
@@ -113,6 +116,13 @@ pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
     let mut truths = Vec::with_capacity(scene.markers.len());
     for spec in &scene.markers {
         truths.push(place_marker(&mut img, spec, &mut rng)?);
+    }
+    if scene.tag_shadows > 0.0 {
+        for t in &truths {
+            if rng.uniform() < scene.tag_shadows {
+                shadow_across(&mut img, t.center, t.side_px, &mut rng);
+            }
+        }
     }
     for (i, spec) in scene.printed.iter().enumerate() {
         truths.push(printed::place(&mut img, spec, i as u32, &mut rng));
@@ -378,6 +388,42 @@ fn shadow(img: &mut GreyImage, rng: &mut Rng) {
             let cover = (half + 0.5 - d.abs()).clamp(0.0, 1.0) as f32;
             if cover > 0.0 {
                 img.data[y * img.width + x] *= 1.0 - 0.45 * cover;
+            }
+        }
+    }
+}
+
+/// A shadow band with hard edges across a tag: through a point within a
+/// quarter side of its centre, a third to two sides wide, darkening to
+/// 40-60%, ending three sides from the tag.
+fn shadow_across(img: &mut GreyImage, centre: Pt, side: f64, rng: &mut Rng) {
+    let through = (
+        centre.0 + rng.range(-0.25, 0.25) * side,
+        centre.1 + rng.range(-0.25, 0.25) * side,
+    );
+    let (s, c) = rng.range(0.0, std::f64::consts::PI).sin_cos();
+    let half = rng.range(0.17, 1.0) * side;
+    let keep = rng.range(0.4, 0.6) as f32;
+    let reach = 3.0 * side;
+    paint_over(img, centre, reach, |x, y| {
+        let d = -s * (x - through.0) + c * (y - through.1);
+        // Penumbra of one pixel, as the band edge's coverage.
+        let cover = (half + 0.5 - d.abs()).clamp(0.0, 1.0) as f32;
+        1.0 - (1.0 - keep) * cover
+    });
+}
+
+/// Multiplies the pixels within `reach` of `centre` by `factor(x, y)`.
+fn paint_over(img: &mut GreyImage, centre: Pt, reach: f64, factor: impl Fn(f64, f64) -> f32) {
+    let x0 = (centre.0 - reach).max(0.0) as usize;
+    let y0 = (centre.1 - reach).max(0.0) as usize;
+    let x1 = ((centre.0 + reach) as usize).min(img.width - 1);
+    let y1 = ((centre.1 + reach) as usize).min(img.height - 1);
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let (fx, fy) = (x as f64, y as f64);
+            if (fx - centre.0).hypot(fy - centre.1) <= reach {
+                img.data[y * img.width + x] *= factor(fx, fy);
             }
         }
     }

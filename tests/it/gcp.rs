@@ -111,6 +111,7 @@ fn scene(width: usize, height: usize, seed: u64) -> Scene {
         markers: Vec::new(),
         printed: Vec::new(),
         motion_blur: (0.0, 0.0),
+        tag_shadows: 0.0,
     }
 }
 

@@ -26,6 +26,7 @@ pub(crate) fn flight() -> &'static (tempfile::TempDir, Vec<PathBuf>) {
             markers: 4,
             kind: FileKind::Gtiff,
             seed: 7,
+            hard: false,
         };
         write_flight(dir.path(), &spec).unwrap();
         let frames = (0..3)

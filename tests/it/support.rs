@@ -104,6 +104,7 @@ pub fn grid_scene(
         markers,
         printed: Vec::new(),
         motion_blur: (0.0, 0.0),
+        tag_shadows: 0.0,
     }
 }
 

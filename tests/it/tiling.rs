@@ -79,6 +79,7 @@ fn targets_on_seams_and_edges_are_found_once() {
         markers,
         printed: Vec::new(),
         motion_blur: (0.0, 0.0),
+        tag_shadows: 0.0,
     };
     let (path, truth) = write_scene(dir.path(), "seams.png", &scene, SampleFormat::Png, None);
     let r = run_one(&path, &opts);
@@ -115,6 +116,7 @@ fn clutter_only_frames_have_no_detections() {
             markers: vec![],
             printed: Vec::new(),
             motion_blur: (0.0, 0.0),
+            tag_shadows: 0.0,
         };
         let (path, _) = write_scene(
             dir.path(),

@@ -1,5 +1,6 @@
-//! AprilTag and ArUco markers through OpenCV 4.6's `aruco` module, with our
-//! own subpixel corner refinement and bit-error read-back.
+//! ArUco markers through OpenCV 4.6's `aruco` module, with our own subpixel
+//! corner refinement and bit-error read-back. (AprilTags go through
+//! libapriltag: see `apriltag`.)
 //!
 //! Every call into `opencv::aruco` lives in this file: OpenCV 4.7 moved the
 //! detector into `objdetect` with a different API, and an upgrade should touch
@@ -37,14 +38,6 @@ const ARUCO_DICTIONARIES: &[(&str, P)] = &[
     ("ARUCO_ORIGINAL", P::DICT_ARUCO_ORIGINAL),
 ];
 
-/// AprilTag families OpenCV ships.
-const APRILTAG_FAMILIES: &[(&str, P)] = &[
-    ("16h5", P::DICT_APRILTAG_16h5),
-    ("25h9", P::DICT_APRILTAG_25h9),
-    ("36h10", P::DICT_APRILTAG_36h10),
-    ("36h11", P::DICT_APRILTAG_36h11),
-];
-
 fn lookup(
     table: &[(&'static str, P)],
     name: &str,
@@ -54,9 +47,6 @@ fn lookup(
         .trim()
         .trim_start_matches("DICT_")
         .trim_start_matches("dict_");
-    let wanted = wanted
-        .trim_start_matches("APRILTAG_")
-        .trim_start_matches("tag");
     table
         .iter()
         .find(|(n, _)| n.eq_ignore_ascii_case(wanted))
@@ -70,51 +60,37 @@ fn lookup(
         })
 }
 
-macro_rules! named_dictionary {
-    ($name:ident, $table:ident, $what:literal, $default:literal) => {
-        #[doc = concat!("A validated ", $what, " name.")]
-        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-        pub struct $name(&'static str, P);
+/// A validated ArUco dictionary name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ArucoDictionary(&'static str, P);
 
-        impl $name {
-            pub fn name(self) -> &'static str {
-                self.0
-            }
-            pub(super) fn opencv_name(self) -> P {
-                self.1
-            }
-        }
-        impl Default for $name {
-            fn default() -> Self {
-                $default.parse().expect("default is in the table")
-            }
-        }
-        impl FromStr for $name {
-            type Err = String;
-            fn from_str(s: &str) -> Result<Self, String> {
-                lookup($table, s, $what).map(|(n, p)| $name(n, p))
-            }
-        }
-        impl fmt::Display for $name {
-            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-                f.write_str(self.0)
-            }
-        }
-    };
+impl ArucoDictionary {
+    pub fn name(self) -> &'static str {
+        self.0
+    }
+    pub(super) fn opencv_name(self) -> P {
+        self.1
+    }
 }
 
-named_dictionary!(
-    ArucoDictionary,
-    ARUCO_DICTIONARIES,
-    "ArUco dictionary",
-    "4X4_50"
-);
-named_dictionary!(
-    AprilTagFamily,
-    APRILTAG_FAMILIES,
-    "AprilTag family",
-    "36h11"
-);
+impl Default for ArucoDictionary {
+    fn default() -> Self {
+        "4X4_50".parse().expect("default is in the table")
+    }
+}
+
+impl FromStr for ArucoDictionary {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        lookup(ARUCO_DICTIONARIES, s, "ArUco dictionary").map(|(n, p)| ArucoDictionary(n, p))
+    }
+}
+
+impl fmt::Display for ArucoDictionary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.0)
+    }
+}
 
 /// Largest plausible corner move during refinement, as a fraction of a
 /// marker cell: raw corners come from a polygon fitted to the thresholded
@@ -135,9 +111,8 @@ const MIN_DECISION_MARGIN: f64 = 0.1;
 /// See `FiducialDetector::new`.
 const MIN_MARKER_DISTANCE_RATE: f64 = 0.02;
 
-/// Detector for one AprilTag family or ArUco dictionary.
+/// Detector for one ArUco dictionary.
 pub struct FiducialDetector {
-    marker_type: MarkerType,
     dictionary: Ptr<Dictionary>,
     params: Ptr<DetectorParameters>,
     /// Data bits per side (without the black border).
@@ -147,12 +122,8 @@ pub struct FiducialDetector {
 }
 
 impl FiducialDetector {
-    pub fn new(
-        marker_type: MarkerType,
-        name: P,
-        config: &super::DetectorConfig,
-    ) -> opencv::Result<Self> {
-        let dictionary = aruco::get_predefined_dictionary(name)?;
+    pub fn new(name: ArucoDictionary, config: &super::DetectorConfig) -> opencv::Result<Self> {
+        let dictionary = aruco::get_predefined_dictionary(name.opencv_name())?;
         let bits = dictionary.marker_size();
         let mut params = DetectorParameters::create()?;
         // Aerial frames: small markers, up to the frame border, no OpenCV
@@ -180,35 +151,12 @@ impl FiducialDetector {
         // which also keeps a shadow edge across the tag from flipping bits.
         params.set_perspective_remove_ignored_margin_per_cell(0.3);
         Ok(FiducialDetector {
-            marker_type,
             dictionary,
             params,
             bits,
             min_target_px: config.min_target_px,
             max_shift_px: config.max_refine_shift_px,
         })
-    }
-
-    /// Refines the four outer corners by fitting lines to the outer edges
-    /// (see `refine`), and rejects the result when a corner moves more than
-    /// the tolerance: the pixel-level corners are then kept and flagged.
-    fn refine_corners(&self, img: &GreyView, raw: &[Pt; 4]) -> ([Pt; 4], f64, Refinement) {
-        let cells = (self.bits + 2) as f64;
-        let cell = geometry::mean_side(raw) / cells;
-        let limit = self
-            .max_shift_px
-            .unwrap_or((cell * MAX_SHIFT_CELLS).max(MIN_SHIFT_LIMIT_PX));
-        let Some(refined) = refine::refine_square(img, raw, cells) else {
-            return (*raw, 0.0, Refinement::Rejected);
-        };
-        let shift = (0..4)
-            .map(|i| geometry::dist(refined[i], raw[i]))
-            .fold(0.0, f64::max);
-        if shift.is_finite() && shift <= limit {
-            (refined, shift, Refinement::Refined)
-        } else {
-            (*raw, shift, Refinement::Rejected)
-        }
     }
 
     /// Reads every cell through the refined quad and compares the data bits
@@ -276,7 +224,7 @@ impl FiducialDetector {
 
 impl Detector for FiducialDetector {
     fn marker_type(&self) -> MarkerType {
-        self.marker_type
+        MarkerType::Aruco
     }
 
     fn detect(
@@ -310,7 +258,8 @@ impl Detector for FiducialDetector {
                 let p = quad.get(i).expect("aruco returns four corners");
                 (p.x as f64, p.y as f64)
             });
-            let (refined, shift, refinement) = self.refine_corners(&img, &raw);
+            let cells = (self.bits + 2) as f64;
+            let (refined, shift, refinement) = refine_corners(&img, &raw, cells, self.max_shift_px);
             let (bit_errors, margin) = self.read_back(&img, &refined, id).map_err(err)?;
             if margin < MIN_DECISION_MARGIN && refinement == Refinement::Rejected {
                 let (x, y) = (raw[0].0 + origin.0 as f64, raw[0].1 + origin.1 as f64);
@@ -327,7 +276,7 @@ impl Detector for FiducialDetector {
             let centre = geometry::diagonal_intersection(&refined);
             let (ox, oy) = (origin.0 as f64, origin.1 as f64);
             out.push(Detection {
-                marker_type: self.marker_type,
+                marker_type: MarkerType::Aruco,
                 marker_id: Some(id as u32),
                 center: (centre.0 + ox, centre.1 + oy),
                 corners: refined.map(|(x, y)| (x + ox, y + oy)),
@@ -342,6 +291,33 @@ impl Detector for FiducialDetector {
             });
         }
         Ok(out)
+    }
+}
+
+/// Refines the four outer corners of a black-bordered tag of `cells` cells
+/// a side (border included) by fitting lines to the outer edges (see
+/// `refine`), and rejects the result when a corner moves more than the
+/// tolerance (`max_shift_px`, else a share of a cell): the pixel-level
+/// corners are then kept and flagged. Returns corners, largest move and
+/// whether the refinement was kept.
+pub(super) fn refine_corners(
+    img: &GreyView,
+    raw: &[Pt; 4],
+    cells: f64,
+    max_shift_px: Option<f64>,
+) -> ([Pt; 4], f64, Refinement) {
+    let cell = geometry::mean_side(raw) / cells;
+    let limit = max_shift_px.unwrap_or((cell * MAX_SHIFT_CELLS).max(MIN_SHIFT_LIMIT_PX));
+    let Some(refined) = refine::refine_square(img, raw, cells) else {
+        return (*raw, 0.0, Refinement::Rejected);
+    };
+    let shift = (0..4)
+        .map(|i| geometry::dist(refined[i], raw[i]))
+        .fold(0.0, f64::max);
+    if shift.is_finite() && shift <= limit {
+        (refined, shift, Refinement::Refined)
+    } else {
+        (*raw, shift, Refinement::Rejected)
     }
 }
 
@@ -378,14 +354,28 @@ pub(super) fn grey_view(tile: &Mat) -> opencv::Result<GreyView<'_>> {
 }
 
 /// The cells of marker `id` including its one-cell black border, true for
-/// white, rendered by OpenCV's own `drawMarker` (used by the test generator).
+/// white, as the reference implementation draws it: libapriltag's
+/// `apriltag_to_image` for AprilTags (classic families), OpenCV's
+/// `drawMarker` for ArUco (used by the test generator).
 pub fn marker_bits(
     marker_type: MarkerType,
     dictionary: &str,
     id: u32,
 ) -> Result<Vec<Vec<bool>>, String> {
     let name = match marker_type {
-        MarkerType::AprilTag => dictionary.parse::<AprilTagFamily>()?.opencv_name(),
+        MarkerType::AprilTag => {
+            let tag = super::apriltag::tag_cells(dictionary.parse()?, id)?;
+            if !tag.classic {
+                return Err(format!(
+                    "AprilTag {dictionary} has data cells outside its border: draw it from tag_cells"
+                ));
+            }
+            let ring = (tag.cells.len() - tag.width_at_border) / 2;
+            return Ok(tag.cells[ring..ring + tag.width_at_border]
+                .iter()
+                .map(|row| row[ring..ring + tag.width_at_border].to_vec())
+                .collect());
+        }
         MarkerType::Aruco => dictionary.parse::<ArucoDictionary>()?.opencv_name(),
         other => return Err(format!("{other} targets carry no code")),
     };

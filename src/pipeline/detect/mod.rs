@@ -4,6 +4,7 @@
 //! Detectors hold OpenCV objects that are Send but not Sync: a worker builds
 //! its own set per frame with [`build_detectors`] (cheap).
 
+mod apriltag;
 mod arcs;
 mod blobs;
 mod circle;
@@ -24,9 +25,10 @@ use std::str::FromStr;
 
 use opencv::core::Mat;
 
+pub use apriltag::{tag_cells, AprilTagDetector, AprilTagFamily, TagCells};
 pub use circle::CircleDetector;
 pub use design::TargetDesign;
-pub use fiducial::{marker_bits, AprilTagFamily, ArucoDictionary, FiducialDetector};
+pub use fiducial::{marker_bits, ArucoDictionary, FiducialDetector};
 pub use printed::PrintedDetector;
 
 /// Why a tile could not be searched.
@@ -300,14 +302,12 @@ pub fn build_detectors(
     let mut out: Vec<Box<dyn Detector>> = Vec::new();
     for mode in &config.modes {
         match mode {
-            MarkerType::AprilTag => out.push(Box::new(FiducialDetector::new(
-                MarkerType::AprilTag,
-                config.apriltag_family.opencv_name(),
+            MarkerType::AprilTag => out.push(Box::new(AprilTagDetector::new(
+                config.apriltag_family,
                 config,
-            )?)),
+            ))),
             MarkerType::Aruco => out.push(Box::new(FiducialDetector::new(
-                MarkerType::Aruco,
-                config.aruco_dictionary.opencv_name(),
+                config.aruco_dictionary,
                 config,
             )?)),
             MarkerType::Crosshair => out.push(Box::new(PrintedDetector::new(

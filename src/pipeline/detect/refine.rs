@@ -52,6 +52,17 @@ const PROFILE_HALF_CELLS: f64 = 0.7;
 /// Profiles are skipped within this many cells of a corner, where the
 /// neighbouring side's edge would enter them.
 const CORNER_SKIP_CELLS: f64 = 0.8;
+/// Where the levels a profile's edge lies midway between are read, either
+/// side of it, in profile half-lengths (see `local_midpoint`). On generated
+/// hard frames (shadows across tags) the centre's p95 error was 0.29/0.25
+/// px with the profile's ends as levels, 0.20/0.21 at 0.3, 0.17/0.19 at
+/// 0.5, 0.18/0.18 at 0.7, 0.22/0.16 at 0.85.
+const LOCAL_LEVEL_HALVES: f64 = 0.6;
+/// Edge points farther from the side's line than this many robust standard
+/// deviations (1.4826 x the median distance) are left out of its fit ...
+const OUTLIER_MADS: f64 = 3.0;
+/// ... but never those within this distance, in pixels: noise alone.
+const MIN_OUTLIER_PX: f64 = 0.2;
 /// A profile whose ends differ by less than this many grey levels carries
 /// no edge (occluded or washed out).
 const MIN_PROFILE_CONTRAST: f64 = 12.0;
@@ -112,7 +123,9 @@ fn fit_side(img: &GreyView, a: Pt, b: Pt, centre: Pt, cell: f64) -> Option<(Pt, 
                 .is_some()
         });
         if complete {
-            if let Some(s) = midpoint_crossing(&profile, half) {
+            let edge =
+                midpoint_crossing(&profile, half).and_then(|s| local_midpoint(&profile, half, s));
+            if let Some(s) = edge {
                 points.push((base.0 + normal.0 * s, base.1 + normal.1 * s));
             }
         }
@@ -121,7 +134,32 @@ fn fit_side(img: &GreyView, a: Pt, b: Pt, centre: Pt, cell: f64) -> Option<(Pt, 
     if points.len() < 4 {
         return None;
     }
-    fit_line(&points)
+    robust_fit(&mut points)
+}
+
+/// Fits a line, then leaves out the points farther from it than
+/// [`OUTLIER_MADS`] robust deviations (a shadow edge or a neighbour's
+/// blob crossing some of the profiles) and fits again, twice.
+fn robust_fit(points: &mut Vec<Pt>) -> Option<(Pt, Pt)> {
+    let mut line = fit_line(points)?;
+    for _ in 0..2 {
+        let ((cx, cy), (dx, dy)) = line;
+        let residual = |p: &Pt| ((p.0 - cx) * dy - (p.1 - cy) * dx).abs();
+        let mut r: Vec<f64> = points.iter().map(residual).collect();
+        r.sort_by(f64::total_cmp);
+        let mad = 1.4826 * r[r.len() / 2];
+        let limit = (OUTLIER_MADS * mad).max(MIN_OUTLIER_PX);
+        let before = points.len();
+        points.retain(|p| residual(p) <= limit);
+        if points.len() == before {
+            break;
+        }
+        if points.len() < 4 {
+            return None;
+        }
+        line = fit_line(points)?;
+    }
+    Some(line)
 }
 
 /// Offset along the profile (from its centre) where intensity crosses the
@@ -146,6 +184,45 @@ fn midpoint_crossing(profile: &[f64], half: f64) -> Option<f64> {
         }
     }
     best
+}
+
+/// The edge near `s` as the midpoint crossing of the levels
+/// [`LOCAL_LEVEL_HALVES`] of a profile's half-length either side of it,
+/// settled by iterating: what lies farther
+/// from the edge (a shadow across the quiet zone, the ground beyond it)
+/// no longer sets the level, and a symmetric blur's midpoint is where the
+/// two levels it straddles average.
+fn local_midpoint(profile: &[f64], half: f64, mut s: f64) -> Option<f64> {
+    let d = LOCAL_LEVEL_HALVES * half;
+    let at = |x: f64| -> Option<f64> {
+        let f = (x + half) / PROFILE_STEP;
+        if f < 0.0 || f > (profile.len() - 1) as f64 {
+            return None;
+        }
+        let i = (f as usize).min(profile.len() - 2);
+        let t = f - i as f64;
+        Some(profile[i] * (1.0 - t) + profile[i + 1] * t)
+    };
+    for _ in 0..3 {
+        let (dark, light) = (at(s - d)?, at(s + d)?);
+        if light - dark < MIN_PROFILE_CONTRAST / 2.0 {
+            return None;
+        }
+        let m = (dark + light) / 2.0;
+        // The crossing of m nearest s.
+        let mut best: Option<f64> = None;
+        for i in 0..profile.len() - 1 {
+            let (p, q) = (profile[i], profile[i + 1]);
+            if p < m && q >= m {
+                let x = -half + (i as f64 + (m - p) / (q - p)) * PROFILE_STEP;
+                if best.is_none_or(|b| (x - s).abs() < (b - s).abs()) {
+                    best = Some(x);
+                }
+            }
+        }
+        s = best?;
+    }
+    Some(s)
 }
 
 /// Total least squares line through points: (centroid, unit direction).

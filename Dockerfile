@@ -1,5 +1,6 @@
 # syntax=docker/dockerfile:1
-# Build and runtime images on Debian bookworm (OpenCV 4.6, GDAL 3.6, PROJ 9.1).
+# Build and runtime images on Debian bookworm (OpenCV 4.6, libapriltag 3.3, GDAL 3.6,
+# PROJ 9.1).
 # The build stage runs the same scripts/setup.sh that the README's commands and
 # CI run, so what CI exercises is what the image builds with.
 
@@ -21,6 +22,7 @@ RUN apt-get update \
         libopencv-core406=4.6.0+dfsg-12 libopencv-imgproc406=4.6.0+dfsg-12 \
         libopencv-calib3d406=4.6.0+dfsg-12 libopencv-contrib406=4.6.0+dfsg-12 \
         libgdal32=3.6.2+dfsg-1+b2 libproj25=9.1.1-1+b1 proj-data=9.1.1-1 \
+        libapriltag3=3.3.0-1+b1 \
         tini=0.19.0-1+b3 ca-certificates=20250419~deb12u2 \
     && rm -rf /var/lib/apt/lists/*
 COPY --from=build /usr/local/bin/gcp-tagger /usr/local/bin/gcp-tagger

@@ -144,7 +144,7 @@ pub struct DetectArgs {
     /// ArUco dictionary: 4X4_50 ... 7X7_1000, ARUCO_ORIGINAL.
     #[arg(long, default_value = "4X4_50", env = "GCP_TAGGER_DICTIONARY")]
     pub dictionary: ArucoDictionary,
-    /// AprilTag family: 16h5, 25h9, 36h10, 36h11.
+    /// AprilTag family: 16h5, 25h9, 36h10, 36h11, Standard41h12, Circle21h7, Custom48h12.
     #[arg(long, default_value = "36h11", env = "GCP_TAGGER_APRILTAG_FAMILY")]
     pub apriltag_family: AprilTagFamily,
     /// CRS of the world coordinates: EPSG:n, WKT, PROJJSON or a PROJ string.

@@ -29,7 +29,8 @@ pub struct UploadQuery {
     marker_types: Option<String>,
     /// ArUco dictionary, e.g. `4X4_50` (default), `5X5_100`, `ARUCO_ORIGINAL`.
     dictionary: Option<String>,
-    /// AprilTag family: `16h5`, `25h9`, `36h10`, `36h11` (default).
+    /// AprilTag family: `16h5`, `25h9`, `36h10`, `36h11` (default),
+    /// `Standard41h12`, `Circle21h7`, `Custom48h12`.
     apriltag_family: Option<String>,
     /// CRS of world coordinates: `EPSG:n`, WKT, PROJJSON or PROJ string (default `EPSG:4326`).
     crs: Option<String>,

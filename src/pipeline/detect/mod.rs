@@ -148,11 +148,14 @@ pub struct Detection {
     /// Largest distance a corner moved during subpixel refinement.
     pub refine_shift_px: f64,
     pub refinement: Refinement,
-    /// Hamming distance between the bits read and the dictionary's code.
+    /// Hamming distance between the bits read and the dictionary's code
+    /// (AprilTag: the bits libapriltag corrected).
     pub bit_errors: Option<u32>,
-    /// How clearly the cells read black or white: the smallest distance of a
-    /// cell's mean from the threshold, as a fraction of the black-white
-    /// contrast (0 = ambiguous, 0.5 = perfect).
+    /// How clearly the cells read black or white. AprilTag: libapriltag's
+    /// `decision_margin`, the mean distance of the data bits' grey from
+    /// their threshold on its search scale (0-255). ArUco: the smallest
+    /// distance of a cell's mean from the threshold, as a fraction of the
+    /// black-white contrast (0 = ambiguous, 0.5 = perfect).
     pub decision_margin: Option<f64>,
     /// Printed targets: RMS distance, in pixels, of the subpixel edge points
     /// from the fitted lines or ellipse.

@@ -404,10 +404,12 @@ impl AprilTagDetector {
         };
         let found = unsafe {
             let z = list.as_ref();
-            let dets = std::slice::from_raw_parts(
-                z.data as *const *mut sys::apriltag_detection_t,
-                z.size.max(0) as usize,
-            );
+            // An empty array has no storage (data is null).
+            let dets: &[*mut sys::apriltag_detection_t] = if z.size <= 0 || z.data.is_null() {
+                &[]
+            } else {
+                std::slice::from_raw_parts(z.data as *const _, z.size as usize)
+            };
             let out = dets
                 .iter()
                 .map(|&d| {

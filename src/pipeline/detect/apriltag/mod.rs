@@ -24,16 +24,42 @@ type Create = unsafe extern "C" fn() -> *mut sys::apriltag_family_t;
 type Destroy = unsafe extern "C" fn(*mut sys::apriltag_family_t);
 
 /// One family libapriltag ships: its name as users give it, constructor
-/// and destructor, and how many bit errors decoding corrects.
+/// and destructor.
 struct FamilyEntry {
     name: &'static str,
     create: Create,
     destroy: Destroy,
-    /// Bits corrected: 2 (the library's default) for families with a
-    /// minimum Hamming distance of 9 and more; 1 for 16h5 and 25h9, whose
-    /// distances of 5 and 9 leave little room between a corrected read and a
-    /// wrong id.
-    max_bits: i32,
+}
+
+/// Largest chance that a random quad (ground, clutter) decodes as some
+/// code of the family within the corrected bits: ncodes x (codes within t
+/// bits of one) / 2^nbits. At most this, a frame's few thousand quads give
+/// a false tag about once in twenty frames.
+const MAX_FALSE_READ: f64 = 1e-5;
+/// Most entries of libapriltag's decoding table (every code within the
+/// corrected bits; about 48 bytes each, one table per worker thread).
+const MAX_TABLE_ENTRIES: f64 = 500_000.0;
+
+/// Bits libapriltag corrects for a family (0 to 2, its default being 2):
+/// the most for which a random quad rarely reads as a code
+/// ([`MAX_FALSE_READ`]) and the table stays small ([`MAX_TABLE_ENTRIES`]).
+/// 36h11: 2 (6e-6, 391k entries); 36h10 and Standard41h12: 1; 16h5, 25h9,
+/// Circle21h7 and Custom48h12: 0 (16h5 and Circle21h7 even then read
+/// random quads as codes more often: 5e-4 and 2e-5).
+fn corrected_bits(ncodes: u32, nbits: u32) -> i32 {
+    let ball = |t: u32| -> f64 {
+        // Codes within t bits of one: sum of C(nbits, i), i <= t.
+        (0..=t)
+            .map(|i| (0..i).fold(1.0, |c, j| c * (nbits - j) as f64 / (j + 1) as f64))
+            .sum()
+    };
+    (1..=2u32)
+        .take_while(|&t| {
+            let entries = ncodes as f64 * ball(t);
+            entries / 2f64.powi(nbits as i32) <= MAX_FALSE_READ && entries <= MAX_TABLE_ENTRIES
+        })
+        .last()
+        .unwrap_or(0) as i32
 }
 
 const FAMILIES: &[FamilyEntry] = &[
@@ -41,45 +67,36 @@ const FAMILIES: &[FamilyEntry] = &[
         name: "16h5",
         create: sys::tag16h5_create,
         destroy: sys::tag16h5_destroy,
-        max_bits: 1,
     },
     FamilyEntry {
         name: "25h9",
         create: sys::tag25h9_create,
         destroy: sys::tag25h9_destroy,
-        max_bits: 1,
     },
     FamilyEntry {
         name: "36h10",
         create: sys::tag36h10_create,
         destroy: sys::tag36h10_destroy,
-        max_bits: 2,
     },
     FamilyEntry {
         name: "36h11",
         create: sys::tag36h11_create,
         destroy: sys::tag36h11_destroy,
-        max_bits: 2,
     },
     FamilyEntry {
         name: "Standard41h12",
         create: sys::tagStandard41h12_create,
         destroy: sys::tagStandard41h12_destroy,
-        max_bits: 2,
     },
     FamilyEntry {
         name: "Circle21h7",
         create: sys::tagCircle21h7_create,
         destroy: sys::tagCircle21h7_destroy,
-        max_bits: 1,
     },
     FamilyEntry {
         name: "Custom48h12",
         create: sys::tagCustom48h12_create,
         destroy: sys::tagCustom48h12_destroy,
-        // 42,211 codes: libapriltag's table of every code within 2 bits
-        // takes 22 s and about 1 GB to build; within 1 bit, 0.3 s.
-        max_bits: 1,
     },
 ];
 
@@ -287,10 +304,11 @@ impl Engine {
             d.refine_edges = true;
             d.decode_sharpening = 0.25;
             d.qtp.min_white_black_diff = MIN_CONTRAST;
+            let fam = handle.get();
             sys::apriltag_detector_add_family_bits(
                 td.as_ptr(),
                 handle.ptr.as_ptr(),
-                family.entry().max_bits,
+                corrected_bits(fam.ncodes, fam.nbits),
             );
         }
         Engine {

@@ -150,3 +150,23 @@ fn a_tag_half_in_hard_shadow_is_found_and_centred() {
         assert!(err < 0.1, "angle {angle}: centre off by {err:.3} px");
     }
 }
+
+#[test]
+fn families_correct_as_many_bits_as_keep_false_reads_rare() {
+    let bits = |name: &str| {
+        let handle = FamilyHandle::new(name.parse().unwrap());
+        let f = handle.get();
+        corrected_bits(f.ncodes, f.nbits)
+    };
+    for (name, want) in [
+        ("16h5", 0),
+        ("25h9", 0),
+        ("36h10", 1),
+        ("36h11", 2),
+        ("Standard41h12", 1),
+        ("Circle21h7", 0),
+        ("Custom48h12", 0),
+    ] {
+        assert_eq!(bits(name), want, "{name}");
+    }
+}

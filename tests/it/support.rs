@@ -21,7 +21,7 @@ pub fn options(crs: &str, modes: &[MarkerType]) -> BatchOptions {
                 modes: modes.to_vec(),
                 ..DetectorConfig::default()
             },
-            tile_size: 2048,
+            tile_size: gcp_tagger::pipeline::frame::DEFAULT_TILE_SIZE,
             max_target_px: 200,
             crs: TargetCrs::parse(crs).expect("valid test CRS"),
         },

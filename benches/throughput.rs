@@ -71,14 +71,16 @@ fn main() {
             let out = dir.with_extension(format!("t{threads}.csv"));
             let (seconds, rss_kib) = run_detect(&dir, &out, &["--threads", &threads.to_string()]);
             let mp = (set.spec.width * set.spec.height * set.spec.frames) as f64 / 1e6;
-            let (recall, median, p95) = accuracy(&dir.join("truth.csv"), &out);
+            let s = score(&dir.join("truth.csv"), &out);
             println!(
-                "| {} x{} | {threads} | {:.1} | {:.0} | {:.1}% | {median:.3} | {p95:.3} |",
+                "| {} x{} | {threads} | {:.1} | {:.0} | {:.1}% | {:.3} | {:.3} |",
                 set.name,
                 set.spec.frames,
                 mp / seconds,
                 rss_kib as f64 / 1024.0,
-                recall * 100.0
+                100.0 * s.found as f64 / s.truth as f64,
+                s.median,
+                s.p95
             );
         }
     }
@@ -303,44 +305,4 @@ fn read_centres(p: &Path) -> Vec<(String, String, f64, f64)> {
             )
         })
         .collect()
-}
-
-/// Recall and centre-error quantiles of `out` against `truth` (both CSV,
-/// matched by image and id, nearest centre).
-fn accuracy(truth: &Path, out: &Path) -> (f64, f64, f64) {
-    let read = |p: &Path| -> Vec<(String, String, f64, f64)> {
-        std::fs::read_to_string(p)
-            .unwrap()
-            .lines()
-            .skip(1)
-            .map(|l| {
-                let f: Vec<&str> = l.split(',').collect();
-                (
-                    f[0].to_string(),
-                    f[2].to_string(),
-                    f[3].parse().unwrap(),
-                    f[4].parse().unwrap(),
-                )
-            })
-            .collect()
-    };
-    let mut found: HashMap<(String, String), Vec<(f64, f64)>> = HashMap::new();
-    for (img, id, x, y) in read(out) {
-        found.entry((img, id)).or_default().push((x, y));
-    }
-    let truth = read(truth);
-    let mut errors: Vec<f64> = truth
-        .iter()
-        .filter_map(|(img, id, x, y)| {
-            found
-                .get(&(img.clone(), id.clone()))?
-                .iter()
-                .map(|(fx, fy)| (fx - x).hypot(fy - y))
-                .filter(|d| *d < 5.0)
-                .reduce(f64::min)
-        })
-        .collect();
-    errors.sort_by(f64::total_cmp);
-    let q = |p: f64| errors[((errors.len() - 1) as f64 * p).round() as usize];
-    (errors.len() as f64 / truth.len() as f64, q(0.5), q(0.95))
 }

@@ -273,22 +273,22 @@ impl Detector for FiducialDetector {
                 );
                 continue;
             }
-            let centre = geometry::diagonal_intersection(&refined);
-            let (ox, oy) = (origin.0 as f64, origin.1 as f64);
-            out.push(Detection {
-                marker_type: MarkerType::Aruco,
-                marker_id: Some(id as u32),
-                center: (centre.0 + ox, centre.1 + oy),
-                corners: refined.map(|(x, y)| (x + ox, y + oy)),
-                size_px: geometry::mean_side(&refined),
-                refine_shift_px: shift,
-                refinement,
-                bit_errors: Some(bit_errors),
-                decision_margin: Some(margin),
-                fit_rms_px: None,
-                confidence: coded_confidence(margin, bit_errors, refinement),
-                tile_margin: geometry::seam_margin(&refined, w, h, seams),
-            });
+            out.push(coded_detection(
+                MarkerType::Aruco,
+                CodedRead {
+                    id: id as u32,
+                    corners: refined,
+                    shift,
+                    refinement,
+                    bit_errors,
+                    margin,
+                    // A clean print reads ~0.4.
+                    clear_margin: 0.35,
+                },
+                origin,
+                (w, h),
+                seams,
+            ));
         }
         Ok(out)
     }
@@ -321,14 +321,49 @@ pub(super) fn refine_corners(
     }
 }
 
-/// Confidence of a coded marker, 0..1: the decision margin scaled to 1 at
-/// 0.35 (a clean print reads ~0.4), less a quarter per corrected bit error,
-/// times 0.6 when the subpixel refinement was rejected.
-fn coded_confidence(margin: f64, bit_errors: u32, refinement: Refinement) -> f64 {
-    let read = (margin / 0.35).clamp(0.0, 1.0) * (1.0 - 0.25 * bit_errors as f64).max(0.0);
-    match refinement {
-        Refinement::Refined => read,
-        Refinement::Rejected => 0.6 * read,
+/// A coded marker read in a tile: corners in tile pixels, marker order.
+pub(super) struct CodedRead {
+    pub id: u32,
+    pub corners: [Pt; 4],
+    pub shift: f64,
+    pub refinement: Refinement,
+    pub bit_errors: u32,
+    pub margin: f64,
+    /// The decision margin that reads as fully clear (confidence 1).
+    pub clear_margin: f64,
+}
+
+/// The [`Detection`] of `read`, in frame pixels, from the tile whose
+/// top-left pixel is `origin`. Confidence, 0..1: the decision margin over
+/// its clear value, less a quarter per corrected bit error, times 0.6 when
+/// the subpixel refinement was rejected.
+pub(super) fn coded_detection(
+    marker_type: MarkerType,
+    read: CodedRead,
+    origin: (usize, usize),
+    tile: (f64, f64),
+    seams: [bool; 4],
+) -> Detection {
+    let centre = geometry::diagonal_intersection(&read.corners);
+    let (ox, oy) = (origin.0 as f64, origin.1 as f64);
+    let clear = (read.margin / read.clear_margin).clamp(0.0, 1.0)
+        * (1.0 - 0.25 * read.bit_errors as f64).max(0.0);
+    Detection {
+        marker_type,
+        marker_id: Some(read.id),
+        center: (centre.0 + ox, centre.1 + oy),
+        corners: read.corners.map(|(x, y)| (x + ox, y + oy)),
+        size_px: geometry::mean_side(&read.corners),
+        refine_shift_px: read.shift,
+        refinement: read.refinement,
+        bit_errors: Some(read.bit_errors),
+        decision_margin: Some(read.margin),
+        fit_rms_px: None,
+        confidence: match read.refinement {
+            Refinement::Refined => clear,
+            Refinement::Rejected => 0.6 * clear,
+        },
+        tile_margin: geometry::seam_margin(&read.corners, tile.0, tile.1, seams),
     }
 }
 

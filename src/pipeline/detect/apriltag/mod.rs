@@ -16,8 +16,8 @@ use std::str::FromStr;
 use opencv::core::{self, Mat};
 use opencv::prelude::*;
 
-use super::fiducial::{grey_view, refine_corners};
-use super::geometry::{self, Pt};
+use super::fiducial::{coded_detection, grey_view, refine_corners, CodedRead};
+use super::geometry::Pt;
 use super::{DetectError, Detection, Detector, MarkerType, Refinement};
 
 type Create = unsafe extern "C" fn() -> *mut sys::apriltag_family_t;
@@ -465,7 +465,6 @@ impl Detector for AprilTagDetector {
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);
         let raws = self.search(tile).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
-        let (ox, oy) = (origin.0 as f64, origin.1 as f64);
         let mut out = Vec::with_capacity(raws.len());
         for raw in raws {
             let (corners, shift, refinement) = if self.classic {
@@ -475,35 +474,26 @@ impl Detector for AprilTagDetector {
                 // fit; libapriltag's own edge-refined corners stand.
                 (raw.corners, 0.0, Refinement::Refined)
             };
-            let centre = geometry::diagonal_intersection(&corners);
-            out.push(Detection {
-                marker_type: MarkerType::AprilTag,
-                marker_id: Some(raw.id),
-                center: (centre.0 + ox, centre.1 + oy),
-                corners: corners.map(|(x, y)| (x + ox, y + oy)),
-                size_px: geometry::mean_side(&corners),
-                refine_shift_px: shift,
-                refinement,
-                bit_errors: Some(raw.hamming),
-                decision_margin: Some(raw.margin),
-                fit_rms_px: None,
-                confidence: confidence(raw.margin, raw.hamming, refinement),
-                tile_margin: geometry::seam_margin(&corners, w, h, seams),
-            });
+            out.push(coded_detection(
+                MarkerType::AprilTag,
+                CodedRead {
+                    id: raw.id,
+                    corners,
+                    shift,
+                    refinement,
+                    bit_errors: raw.hamming,
+                    margin: raw.margin,
+                    // libapriltag's mean distance of the data bits from
+                    // their threshold, in grey levels of the search scale:
+                    // clean prints read 100-180.
+                    clear_margin: 50.0,
+                },
+                origin,
+                (w, h),
+                seams,
+            ));
         }
         Ok(out)
-    }
-}
-
-/// Confidence of a tag, 0..1: libapriltag's decision margin (the mean
-/// distance of the data bits' grey from their threshold, in grey levels)
-/// scaled to 1 at 50, less a quarter per corrected bit, times 0.6 when
-/// our subpixel refinement was rejected.
-fn confidence(margin: f64, hamming: u32, refinement: Refinement) -> f64 {
-    let read = (margin / 50.0).clamp(0.0, 1.0) * (1.0 - 0.25 * hamming as f64).max(0.0);
-    match refinement {
-        Refinement::Refined => read,
-        Refinement::Rejected => 0.6 * read,
     }
 }
 

@@ -1,4 +1,5 @@
 use super::*;
+use crate::pipeline::detect::geometry;
 use crate::pipeline::detect::test_image::render_image;
 use crate::pipeline::detect::DetectorConfig;
 

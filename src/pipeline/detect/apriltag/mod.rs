@@ -242,9 +242,10 @@ pub struct TagCells {
 /// lit one, and the tag's outline was lost. Decoding reads the same image.
 ///
 /// Calibrated on generated hard frames (`gcp-tagger sample --hard`, seeds
-/// 31 and 32; the bench's seeds 13 and 14 were not used): knee 32 found
-/// 0.911/0.952 of the tags, 64 0.973/0.976, 96 0.938/0.929, 128
-/// 0.929/0.857, the linear scale 0.768/0.667.
+/// 31 and 32, JPEG/16-bit GeoTIFF; the bench's seeds 13 and 14 were not
+/// used), `min_white_black_diff` 40: knee 32 found 0.911/0.952 of the
+/// tags, 64 0.973/0.976 (the same at 50), 96 0.938/0.929, 128 0.929/0.857,
+/// the linear scale 0.768/0.667.
 const KNEE: f64 = 64.0;
 
 /// libapriltag's `min_white_black_diff` on the mapped scale: a pixel whose

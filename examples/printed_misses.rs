@@ -118,7 +118,7 @@ fn main() {
                     .unwrap_or_default(),
                 ..DetectorConfig::default()
             },
-            tile_size: gcp_tagger::pipeline::frame::DEFAULT_TILE_SIZE,
+            tile_size: gcp_tagger::pipeline::frame::PRINTED_TILE_SIZE,
             max_target_px: 200,
             crs: TargetCrs::parse("EPSG:4326").unwrap(),
         },

@@ -15,7 +15,7 @@ use crate::pipeline::batch::{run_batch, BatchOptions, FrameInput, FrameOutcome};
 use crate::pipeline::detect::{
     AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType, TargetDesign,
 };
-use crate::pipeline::frame::{FrameOptions, FrameResult, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE};
+use crate::pipeline::frame::{default_tile_size, FrameOptions, FrameResult, DEFAULT_MAX_TARGET_PX};
 use crate::pipeline::georef::{TargetCrs, Transformer};
 use crate::pipeline::memory::default_max_ram_bytes;
 use crate::pipeline::output::{render, Format};
@@ -180,9 +180,10 @@ pub struct DetectArgs {
     /// Frames processed at once (default: number of cores).
     #[arg(long, env = "GCP_TAGGER_THREADS")]
     pub threads: Option<usize>,
-    /// Tile side in pixels.
-    #[arg(long, default_value_t = DEFAULT_TILE_SIZE, env = "GCP_TAGGER_TILE_SIZE")]
-    pub tile_size: usize,
+    /// Tile side in pixels (default: 1024 for coded targets only, 2048 when
+    /// printed targets are searched).
+    #[arg(long, env = "GCP_TAGGER_TILE_SIZE")]
+    pub tile_size: Option<usize>,
     /// Largest target side in pixels; tiles overlap by more than this.
     #[arg(long, default_value_t = DEFAULT_MAX_TARGET_PX, env = "GCP_TAGGER_MAX_TARGET_PX")]
     pub max_target_px: usize,
@@ -317,7 +318,8 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
             gsd_cm: args.gsd_cm,
             designs,
         },
-        args.tile_size,
+        args.tile_size
+            .unwrap_or_else(|| default_tile_size(&args.marker_type)),
         args.max_target_px,
         crs.clone(),
     )

@@ -38,7 +38,8 @@ pub struct UploadQuery {
     pixel_tolerance: Option<f64>,
     /// Largest subpixel corner move accepted, in pixels (default: 0.6 of a marker cell, at least 1.5 px).
     max_refine_shift_px: Option<f64>,
-    /// Tile side in pixels, 256..=8192 (default 1024).
+    /// Tile side in pixels, 256..=8192 (default 1024 for coded targets only,
+    /// 2048 when printed targets are searched).
     tile_size: Option<usize>,
     /// Largest target side in pixels (default 200).
     max_target_px: Option<usize>,

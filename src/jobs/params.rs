@@ -8,7 +8,7 @@ use crate::pipeline::detect::{
     AprilTagFamily, ArucoDictionary, DetectorConfig, MarkerType, TargetDesign,
 };
 use crate::pipeline::frame::{
-    FrameOptions, InvalidSetting, DEFAULT_MAX_TARGET_PX, DEFAULT_TILE_SIZE,
+    default_tile_size, FrameOptions, InvalidSetting, DEFAULT_MAX_TARGET_PX,
 };
 use crate::pipeline::georef::TargetCrs;
 
@@ -37,8 +37,10 @@ pub struct JobParams {
     /// (default: 0.6 of a marker cell, at least 1.5 px).
     #[serde(default)]
     pub max_refine_shift_px: Option<f64>,
-    /// Tile side in pixels.
-    pub tile_size: usize,
+    /// Tile side in pixels (default 1024 for coded targets only, 2048 when
+    /// printed targets are searched).
+    #[serde(default)]
+    pub tile_size: Option<usize>,
     /// Largest target side in pixels.
     pub max_target_px: usize,
     /// Smallest target side in pixels.
@@ -66,7 +68,7 @@ impl Default for JobParams {
             crs: "EPSG:4326".into(),
             pixel_tolerance: None,
             max_refine_shift_px: None,
-            tile_size: DEFAULT_TILE_SIZE,
+            tile_size: None,
             max_target_px: DEFAULT_MAX_TARGET_PX,
             min_target_px: 16.0,
             target_size_m: None,
@@ -121,7 +123,7 @@ impl JobParams {
                 "max_refine_shift_px" => {
                     p.max_refine_shift_px = Some(value.parse().map_err(|_| number("a number"))?)
                 }
-                "tile_size" => p.tile_size = value.parse().map_err(|_| number("an integer"))?,
+                "tile_size" => p.tile_size = Some(value.parse().map_err(|_| number("an integer"))?),
                 "max_target_px" => {
                     p.max_target_px = value.parse().map_err(|_| number("an integer"))?
                 }
@@ -191,6 +193,7 @@ impl JobParams {
                 ));
             }
         }
+        let tile_size = self.tile_size.unwrap_or_else(|| default_tile_size(&modes));
         let options = FrameOptions::new(
             DetectorConfig {
                 modes: modes.clone(),
@@ -204,7 +207,7 @@ impl JobParams {
                     .or(design.as_ref().and_then(|d| d.size_m)),
                 designs: design.iter().cloned().collect(),
             },
-            self.tile_size,
+            tile_size,
             self.max_target_px,
             crs,
         )?;
@@ -220,6 +223,7 @@ impl JobParams {
             target_design: design
                 .as_ref()
                 .map(|d| serde_json::to_string(d).expect("a design serialises")),
+            tile_size: Some(tile_size),
             ..self.clone()
         };
         Ok((canonical, options))
@@ -238,7 +242,7 @@ mod tests {
     fn pairs_override_defaults_and_name_the_bad_field() {
         let p = JobParams::from_pairs([("marker_types", "aruco,apriltag"), ("tile_size", "1024")])
             .unwrap();
-        assert_eq!(p.tile_size, 1024);
+        assert_eq!(p.tile_size, Some(1024));
         let (canonical, options) = p.check().unwrap();
         assert_eq!(canonical.marker_types, "apriltag,aruco");
         assert_eq!(options.detector.modes.len(), 2);

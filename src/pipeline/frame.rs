@@ -4,18 +4,36 @@
 use opencv::core::{Mat, CV_8UC1};
 
 use super::camera::CameraMeta;
-use super::detect::{build_detectors, DetectError, Detection, DetectorConfig, SizeRange};
+use super::detect::{
+    build_detectors, DetectError, Detection, DetectorConfig, MarkerType, SizeRange,
+};
 use super::georef::{Georeference, TargetCrs, Transformer, WGS84};
 use super::raster::{RasterError, RasterFrame};
 use super::tiles::TileGrid;
 use super::{dedup, memory};
 
-/// Default tile side. Smaller tiles stay in the CPU's caches: on the
-/// throughput bench's frames (2 threads) 1024 px took AprilTag from 2.1 to
-/// 1.5-1.8 s and crosshair,circle from 12.7 to 8.4 s against 2048 px, for
-/// the same detections, although the 258 px overlap is then a larger share;
-/// a strip of an 8000 px wide frame is 8 MB.
-pub const DEFAULT_TILE_SIZE: usize = 1024;
+/// Default tile side when only coded targets are searched: small tiles
+/// stay in the CPU's caches. On the throughput bench's frames (2 threads)
+/// 1024 px took AprilTag from 2.1 to 1.5-1.8 s against 2048 px for the same
+/// detections, and libapriltag's working set per tile a quarter.
+pub const CODED_TILE_SIZE: usize = 1024;
+
+/// Default tile side when printed targets are searched too. 1024 px would
+/// be faster for them as well (crosshair,circle 12.7 -> 8.4 s on the bench's
+/// frames), but their context checks (repeats one board away, ground
+/// around) see less of a target's surroundings near a tile's border, and
+/// crosshair look-alikes on generated clutter rose from 4 to 6 (scenes
+/// 700-709) and 18 to 21 (3300-3315).
+pub const PRINTED_TILE_SIZE: usize = 2048;
+
+/// The tile side for a job searching `modes`, unless it names one.
+pub fn default_tile_size(modes: &[MarkerType]) -> usize {
+    if modes.iter().all(|m| m.is_coded()) {
+        CODED_TILE_SIZE
+    } else {
+        PRINTED_TILE_SIZE
+    }
+}
 
 /// Default largest target side in pixels; the tile overlap is derived from it.
 pub const DEFAULT_MAX_TARGET_PX: usize = 200;

@@ -21,7 +21,7 @@ pub fn options(crs: &str, modes: &[MarkerType]) -> BatchOptions {
                 modes: modes.to_vec(),
                 ..DetectorConfig::default()
             },
-            tile_size: gcp_tagger::pipeline::frame::DEFAULT_TILE_SIZE,
+            tile_size: gcp_tagger::pipeline::frame::default_tile_size(modes),
             max_target_px: 200,
             crs: TargetCrs::parse(crs).expect("valid test CRS"),
         },

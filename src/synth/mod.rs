@@ -126,6 +126,15 @@ pub fn sample_geo(frame_index: usize) -> GeoSpec {
     }
 }
 
+/// Clutter of the coded-tag scenes: squares, discs and bars, no printed
+/// look-alikes.
+const TAG_CLUTTER: Clutter = Clutter {
+    squares: 30,
+    circles: 20,
+    stripes: 6,
+    lookalikes: 0,
+};
+
 /// A scene with `markers` non-overlapping markers of 30-60 px at random
 /// positions (some near seams of the default 2048 px tiles), moderate blur
 /// and noise, a brightness gradient, shadows and clutter.
@@ -140,12 +149,7 @@ pub fn random_scene(width: usize, height: usize, markers: usize, seed: u64) -> S
         noise_sigma: 3.0,
         gradient: 0.25,
         shadows: 2,
-        clutter: Clutter {
-            squares: 30,
-            circles: 20,
-            stripes: 6,
-            lookalikes: 0,
-        },
+        clutter: TAG_CLUTTER,
         markers,
         printed: Vec::new(),
         motion_blur: (0.0, 0.0),
@@ -169,12 +173,7 @@ pub fn hard_scene(width: usize, height: usize, markers: usize, seed: u64) -> Sce
         noise_sigma: rng.range(2.0, 5.0),
         gradient: 0.3,
         shadows: 2,
-        clutter: Clutter {
-            squares: 30,
-            circles: 20,
-            stripes: 6,
-            lookalikes: 0,
-        },
+        clutter: TAG_CLUTTER,
         markers,
         printed: Vec::new(),
         motion_blur: if moving {

@@ -162,21 +162,11 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
 /// normal) darkening one side within `radius`, as a pole or a tree casts.
 fn local_shadow(img: &mut GreyImage, center: Pt, angle: f64, offset: f64, radius: f64) {
     let (s, c) = angle.sin_cos();
-    let x0 = (center.0 - radius).max(0.0) as usize;
-    let y0 = (center.1 - radius).max(0.0) as usize;
-    let x1 = ((center.0 + radius) as usize).min(img.width - 1);
-    let y1 = ((center.1 + radius) as usize).min(img.height - 1);
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let (dx, dy) = (x as f64 - center.0, y as f64 - center.1);
-            if dx.hypot(dy) > radius {
-                continue;
-            }
-            let d = -s * dx + c * dy - offset;
-            let cover = (0.5 - d).clamp(0.0, 1.0) as f32;
-            img.data[y * img.width + x] *= 1.0 - 0.45 * cover;
-        }
-    }
+    super::render::paint_over(img, center, radius, |x, y| {
+        let d = -s * (x - center.0) + c * (y - center.1) - offset;
+        let cover = (0.5 - d).clamp(0.0, 1.0) as f32;
+        1.0 - 0.45 * cover
+    });
 }
 
 /// Paints one random look-alike of a printed target.

@@ -414,7 +414,12 @@ fn shadow_across(img: &mut GreyImage, centre: Pt, side: f64, rng: &mut Rng) {
 }
 
 /// Multiplies the pixels within `reach` of `centre` by `factor(x, y)`.
-fn paint_over(img: &mut GreyImage, centre: Pt, reach: f64, factor: impl Fn(f64, f64) -> f32) {
+pub(super) fn paint_over(
+    img: &mut GreyImage,
+    centre: Pt,
+    reach: f64,
+    factor: impl Fn(f64, f64) -> f32,
+) {
     let x0 = (centre.0 - reach).max(0.0) as usize;
     let y0 = (centre.1 - reach).max(0.0) as usize;
     let x1 = ((centre.0 + reach) as usize).min(img.width - 1);

@@ -18,6 +18,7 @@ use opencv::prelude::*;
 
 use super::fiducial::{coded_detection, grey_view, refine_corners, CodedRead};
 use super::geometry::Pt;
+use super::refine::GreyView;
 use super::{DetectError, Detection, Detector, MarkerType, Refinement};
 
 type Create = unsafe extern "C" fn() -> *mut sys::apriltag_family_t;
@@ -392,8 +393,7 @@ struct Raw {
 }
 
 impl AprilTagDetector {
-    fn search(&mut self, tile: &Mat) -> opencv::Result<Vec<Raw>> {
-        let view = grey_view(tile)?;
+    fn search(&mut self, view: &GreyView) -> opencv::Result<Vec<Raw>> {
         // The mapped copy, reused from tile to tile.
         let scaled = &mut self.scaled;
         scaled.resize(view.width * view.height, 0);
@@ -464,8 +464,8 @@ impl Detector for AprilTagDetector {
     ) -> Result<Vec<Detection>, DetectError> {
         let err = DetectError::at(origin);
         let (w, h) = (tile.cols() as f64, tile.rows() as f64);
-        let raws = self.search(tile).map_err(err)?;
         let img = grey_view(tile).map_err(err)?;
+        let raws = self.search(&img).map_err(err)?;
         let mut out = Vec::with_capacity(raws.len());
         for raw in raws {
             let (corners, shift, refinement) = if self.classic {

@@ -124,6 +124,7 @@ fn main() {
         },
         threads: 1,
         max_ram_bytes: 2 << 30,
+        chips: None,
     };
     let (mut total, mut missed) = (0, 0);
     let mut errors: [Vec<f64>; 2] = Default::default();

@@ -177,6 +177,9 @@ pub struct DetectArgs {
     /// Folder for gcp_list.txt, pix4d_marks.csv, metashape_markers.xml, survey_points.geojson, observations.csv and report.json, and exports.zip holding all six.
     #[arg(long, env = "GCP_TAGGER_EXPORTS", requires = "survey")]
     pub exports: Option<PathBuf>,
+    /// Folder for a picture of each target (`IMAGE.N.png`: a crop around it with its outline and centre drawn, N its place among the frame's rows of the results) and of each frame (`IMAGE.preview.jpg`, every target circled); created if missing.
+    #[arg(long, env = "GCP_TAGGER_CHIPS")]
+    pub chips: Option<PathBuf>,
     /// Frames processed at once (default: number of cores).
     #[arg(long, env = "GCP_TAGGER_THREADS")]
     pub threads: Option<usize>,
@@ -330,7 +333,12 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
             .threads
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
         max_ram_bytes,
+        chips: args.chips.clone(),
     };
+    if let Some(dir) = &options.chips {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| usage(format!("--chips {}: {e}", dir.display())))?;
+    }
 
     let bar = progress_bar(inputs.len() as u64, args.quiet);
     let failures = Mutex::new(0usize);

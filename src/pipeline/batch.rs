@@ -7,7 +7,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use super::frame::{
-    detect_frame, FrameError, FrameObserver, FrameOptions, FrameResult, NoObserver,
+    detect_frame, detect_frame_pictured, FrameError, FrameObserver, FrameOptions, FrameResult,
+    NoObserver,
 };
 use super::georef::Transformer;
 use super::memory::{estimate_frame_bytes, RamBudget};
@@ -31,6 +32,9 @@ pub struct BatchOptions {
     /// The process's memory limit; frames share what is left after the
     /// process's base footprint.
     pub max_ram_bytes: u64,
+    /// A folder for each target's chip and each frame's preview (see
+    /// [`super::pictures`]); none makes no pictures.
+    pub chips: Option<PathBuf>,
 }
 
 /// Processes `inputs` and returns one outcome per input, in input order.
@@ -56,8 +60,22 @@ pub fn run_batch(
                     loop {
                         let i = next.fetch_add(1, Ordering::SeqCst);
                         let Some(input) = inputs.get(i) else { break };
-                        let outcome =
-                            run_one(input, &options.frame, budget, &mut transformer, &NoObserver);
+                        let outcome = match &options.chips {
+                            None => run_one(
+                                input,
+                                &options.frame,
+                                budget,
+                                &mut transformer,
+                                &NoObserver,
+                            ),
+                            Some(dir) => run_one_pictured(
+                                input,
+                                &options.frame,
+                                budget,
+                                &mut transformer,
+                                dir,
+                            ),
+                        };
                         on_frame(input, &outcome);
                         *slots[i].lock().expect("slot lock") = Some(outcome);
                     }
@@ -86,4 +104,34 @@ pub fn run_one(
     let _permit = budget.acquire(need)?;
     tracing::debug!(need_mib = need >> 20, "frame admitted");
     detect_frame(frame, &input.name, options, transformer, observer)
+}
+
+/// [`run_one`], writing the frame's chips and preview into `dir` as
+/// `NAME.N.png` (N: the target's place in the frame's results, from 0) and
+/// `NAME.preview.jpg`, NAME being the frame's name with `/` as `_`.
+pub fn run_one_pictured(
+    input: &FrameInput,
+    options: &FrameOptions,
+    budget: &RamBudget,
+    transformer: &mut Transformer,
+    dir: &std::path::Path,
+) -> FrameOutcome {
+    let span = tracing::info_span!("frame", image = %input.name);
+    let _enter = span.enter();
+    let frame = open_frame(&input.path)?;
+    let need = estimate_frame_bytes(frame.header(), options.tile_size);
+    let _permit = budget.acquire(need)?;
+    let (result, pictures) =
+        detect_frame_pictured(frame, &input.name, options, transformer, &NoObserver)?;
+    let stem = input.name.replace(['/', '\\'], "_");
+    let write = |name: String, bytes: &[u8]| {
+        std::fs::write(dir.join(&name), bytes).map_err(|e| {
+            FrameError::Picture(format!("cannot write {}: {e}", dir.join(name).display()))
+        })
+    };
+    for (i, chip) in pictures.chips.iter().enumerate() {
+        write(format!("{stem}.{i}.png"), chip)?;
+    }
+    write(format!("{stem}.preview.jpg"), &pictures.preview)?;
+    Ok(result)
 }

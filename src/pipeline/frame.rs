@@ -8,6 +8,7 @@ use super::detect::{
     build_detectors, DetectError, Detection, DetectorConfig, MarkerType, SizeRange,
 };
 use super::georef::{Georeference, TargetCrs, Transformer, WGS84};
+use super::pictures::{self, Crop, Pictures, Preview};
 use super::raster::{RasterError, RasterFrame};
 use super::tiles::TileGrid;
 use super::{dedup, memory};
@@ -179,6 +180,8 @@ pub enum FrameError {
     OpenCv(#[from] opencv::Error),
     #[error("canceled")]
     Canceled,
+    #[error("{0}")]
+    Picture(String),
 }
 
 /// What a caller learns while a frame runs, and how it can stop it.
@@ -197,11 +200,44 @@ impl FrameObserver for NoObserver {}
 
 /// Runs detection over an opened frame and georeferences the results.
 pub fn detect_frame(
+    frame: RasterFrame,
+    image: &str,
+    options: &FrameOptions,
+    transformer: &mut Transformer,
+    observer: &dyn FrameObserver,
+) -> Result<FrameResult, FrameError> {
+    run_frame(frame, image, options, transformer, observer, None)
+}
+
+/// [`detect_frame`], also making the frame's [`Pictures`] (a chip per
+/// target, in the result's order, and a preview) from the strips as they
+/// pass.
+pub fn detect_frame_pictured(
+    frame: RasterFrame,
+    image: &str,
+    options: &FrameOptions,
+    transformer: &mut Transformer,
+    observer: &dyn FrameObserver,
+) -> Result<(FrameResult, Pictures), FrameError> {
+    let mut pictures = Pictures::default();
+    let result = run_frame(
+        frame,
+        image,
+        options,
+        transformer,
+        observer,
+        Some(&mut pictures),
+    )?;
+    Ok((result, pictures))
+}
+
+fn run_frame(
     mut frame: RasterFrame,
     image: &str,
     options: &FrameOptions,
     transformer: &mut Transformer,
     observer: &dyn FrameObserver,
+    mut pictures: Option<&mut Pictures>,
 ) -> Result<FrameResult, FrameError> {
     let header = frame.header().clone();
     let (w, h) = (header.width, header.height);
@@ -219,6 +255,11 @@ pub fn detect_frame(
 
     let mut strip = vec![0u8; w * grid.tile_h];
     let mut found: Vec<Detection> = Vec::new();
+    // Pictures: the preview grows strip by strip; each detection's crop is
+    // cut while its strip is in memory (one per copy, matched after
+    // duplicates are removed).
+    let mut preview = pictures.as_ref().map(|_| Preview::new(w, h));
+    let mut crops: Vec<(Detection, Crop)> = Vec::new();
     let mut done = 0;
     // Where the frame stops decoding, when it does (a file cut off part-way).
     let mut cut: Option<(usize, String)> = None;
@@ -264,16 +305,26 @@ pub fn detect_frame(
             }
             Err(e) => return Err(e.into()),
         }
+        if let Some(p) = preview.as_mut() {
+            let valid = cut.as_ref().map_or(grid.tile_h, |(at, _)| at - y0);
+            p.add_rows(&strip[..valid.min(grid.tile_h) * w], w, y0);
+        }
         for (col, &x0) in grid.xs.iter().enumerate() {
             if observer.should_stop() {
                 return Err(FrameError::Canceled);
             }
             let tile = tile_view(&strip, w, x0, grid.tile_w, grid.tile_h)?;
             let seams = grid.seams(col, row);
+            let before = found.len();
             for detector in detectors.iter_mut() {
                 found.extend(detector.detect(&tile, (x0, y0), seams)?);
             }
             drop(tile);
+            if pictures.is_some() {
+                for d in &found[before..] {
+                    crops.push((d.clone(), pictures::crop(&strip, w, y0, d)));
+                }
+            }
             done += 1;
             observer.tile_done(done, grid.count());
         }
@@ -291,6 +342,9 @@ pub fn detect_frame(
         ));
     }
     dedup::remove_duplicates(&mut found);
+    if let (Some(out), Some(preview)) = (pictures.as_deref_mut(), preview) {
+        make_pictures(out, &found, &crops, &preview)?;
+    }
 
     let (world, lonlat) = georeference(&header, &found, &options.crs, transformer, &mut warnings);
     let targets = found
@@ -313,6 +367,31 @@ pub fn detect_frame(
         georeference: header.georeference.clone(),
         camera: header.camera.clone(),
     })
+}
+
+/// Each kept detection's chip, from the crop of the copy that was kept,
+/// and the preview with every detection marked.
+fn make_pictures(
+    out: &mut Pictures,
+    found: &[Detection],
+    crops: &[(Detection, Crop)],
+    preview: &Preview,
+) -> Result<(), FrameError> {
+    let picture_error = |message: String| FrameError::Picture(message);
+    for d in found {
+        let crop = crops
+            .iter()
+            .find(|(c, _)| {
+                c.marker_type == d.marker_type && c.marker_id == d.marker_id && c.center == d.center
+            })
+            .map(|(_, crop)| crop)
+            .expect("every kept detection was cropped");
+        out.chips
+            .push(pictures::chip_png(crop, d).map_err(picture_error)?);
+    }
+    let all: Vec<&Detection> = found.iter().collect();
+    out.preview = preview.jpeg(&all).map_err(picture_error)?;
+    Ok(())
 }
 
 /// A Mat header over columns `x0..x0 + tile_w` of the grey strip, no copy.

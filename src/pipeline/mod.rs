@@ -13,6 +13,7 @@ pub mod georef;
 pub mod layout;
 pub mod memory;
 pub mod output;
+pub mod pictures;
 pub mod raster;
 pub mod tiles;
 

@@ -27,6 +27,7 @@ pub fn options(crs: &str, modes: &[MarkerType]) -> BatchOptions {
         },
         threads: 2,
         max_ram_bytes: 2 << 30,
+        chips: None,
     }
 }
 

@@ -1,0 +1,324 @@
+//! Pictures of what was found, made while the frame streams past so the
+//! frame is never decoded twice nor held whole:
+//!
+//! - a **chip** per detection: a crop of the strip around it (three times
+//!   its size, at least [`MIN_CHIP_PX`]), enlarged to at least
+//!   [`CHIP_VIEW_PX`] by whole pixels (no smoothing), with the fitted
+//!   outline in yellow and the reported centre as a red cross whose lines
+//!   pass through it to a tenth of an enlarged pixel;
+//! - a **preview**: the frame reduced by block averages to at most
+//!   [`PREVIEW_PX`] a side, built up strip by strip, with every detection
+//!   circled and labelled.
+//!
+//! Pictures are grey (the pipeline reads one luminance band) with colour
+//! drawings; chips are PNG, previews JPEG, both encoded by GDAL.
+
+use gdal::raster::{Buffer, RasterCreationOptions};
+use gdal::DriverManager;
+use opencv::core::{Mat, Point, Scalar, Vector, CV_8UC3};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+use super::detect::{Detection, MarkerType};
+
+/// Least side of a chip's crop, in frame pixels.
+pub const MIN_CHIP_PX: usize = 96;
+/// Least side of a chip as stored: small crops are enlarged to it.
+pub const CHIP_VIEW_PX: usize = 192;
+/// Largest side of a preview.
+pub const PREVIEW_PX: usize = 1600;
+/// Fractional bits of OpenCV's drawing coordinates (1/256 px).
+const SHIFT: i32 = 8;
+
+/// The colours drawn, BGR.
+const CENTRE: (f64, f64, f64) = (0.0, 0.0, 255.0);
+const OUTLINE: (f64, f64, f64) = (0.0, 255.0, 255.0);
+
+fn colour(c: (f64, f64, f64)) -> Scalar {
+    Scalar::new(c.0, c.1, c.2, 0.0)
+}
+
+/// A crop of the frame's grey pixels: `side` x `side` from (`x0`, `y0`),
+/// frame pixels outside the strip it was cut from left mid-grey.
+#[derive(Debug, Clone)]
+pub struct Crop {
+    pub x0: i64,
+    pub y0: i64,
+    pub side: usize,
+    pub grey: Vec<u8>,
+}
+
+/// The window of a detection's chip in frame pixels: (x0, y0, side).
+pub fn chip_window(d: &Detection) -> (i64, i64, usize) {
+    let side = ((3.0 * d.size_px).ceil() as usize).max(MIN_CHIP_PX);
+    let x0 = (d.center.0 - 0.5 * side as f64).round() as i64;
+    let y0 = (d.center.1 - 0.5 * side as f64).round() as i64;
+    (x0, y0, side)
+}
+
+/// Cuts `d`'s chip from a strip of `w`-pixel rows starting at frame row
+/// `strip_y0`.
+pub fn crop(strip: &[u8], w: usize, strip_y0: usize, d: &Detection) -> Crop {
+    let (x0, y0, side) = chip_window(d);
+    let rows = strip.len() / w;
+    let mut grey = vec![128u8; side * side];
+    for r in 0..side {
+        let y = y0 + r as i64 - strip_y0 as i64;
+        if y < 0 || y >= rows as i64 {
+            continue;
+        }
+        let row = &strip[y as usize * w..(y as usize + 1) * w];
+        for c in 0..side {
+            let x = x0 + c as i64;
+            if (0..w as i64).contains(&x) {
+                grey[r * side + c] = row[x as usize];
+            }
+        }
+    }
+    Crop { x0, y0, side, grey }
+}
+
+/// How much a chip of `side` frame pixels is enlarged.
+pub fn chip_zoom(side: usize) -> usize {
+    CHIP_VIEW_PX.div_ceil(side).max(1)
+}
+
+/// Where frame position `p` lands in an enlarged chip: pixel centres at
+/// integers, the chip's top-left frame pixel covering 0..zoom.
+pub fn to_chip(crop: &Crop, zoom: usize, p: (f64, f64)) -> (f64, f64) {
+    let z = zoom as f64;
+    (
+        (p.0 - crop.x0 as f64 + 0.5) * z - 0.5,
+        (p.1 - crop.y0 as f64 + 0.5) * z - 0.5,
+    )
+}
+
+fn fixed(p: (f64, f64)) -> Point {
+    let s = (1 << SHIFT) as f64;
+    Point::new((p.0 * s).round() as i32, (p.1 * s).round() as i32)
+}
+
+/// Grey bytes as a BGR Mat, each pixel repeated `zoom` x `zoom`.
+fn bgr(grey: &[u8], w: usize, h: usize, zoom: usize) -> opencv::Result<Mat> {
+    let (zw, zh) = (w * zoom, h * zoom);
+    let mut m = Mat::new_rows_cols_with_default(zh as i32, zw as i32, CV_8UC3, Scalar::all(0.0))?;
+    let data = m.data_bytes_mut()?;
+    for y in 0..zh {
+        for x in 0..zw {
+            let v = grey[(y / zoom) * w + x / zoom];
+            let o = (y * zw + x) * 3;
+            data[o..o + 3].copy_from_slice(&[v, v, v]);
+        }
+    }
+    Ok(m)
+}
+
+/// The chip of `d` from its crop, as PNG bytes.
+pub fn chip_png(crop: &Crop, d: &Detection) -> Result<Vec<u8>, String> {
+    let zoom = chip_zoom(crop.side);
+    let draw = || -> opencv::Result<Mat> {
+        let mut m = bgr(&crop.grey, crop.side, crop.side, zoom)?;
+        let corners: Vector<Point> = d
+            .corners
+            .iter()
+            .map(|&c| fixed(to_chip(crop, zoom, c)))
+            .collect();
+        let mut poly = Vector::<Vector<Point>>::new();
+        poly.push(corners);
+        imgproc::polylines(
+            &mut m,
+            &poly,
+            true,
+            colour(OUTLINE),
+            1,
+            imgproc::LINE_AA,
+            SHIFT,
+        )?;
+        // The centre: two one-pixel lines crossing at it, a gap around it
+        // so the target's own crossing stays visible.
+        let c = to_chip(crop, zoom, d.center);
+        let arm = (0.25 * d.size_px * zoom as f64).max(12.0);
+        let gap = (0.04 * d.size_px * zoom as f64).max(3.0);
+        for (dx, dy) in [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
+            imgproc::line(
+                &mut m,
+                fixed((c.0 + dx * gap, c.1 + dy * gap)),
+                fixed((c.0 + dx * arm, c.1 + dy * arm)),
+                colour(CENTRE),
+                1,
+                imgproc::LINE_8,
+                SHIFT,
+            )?;
+        }
+        Ok(m)
+    };
+    let m = draw().map_err(|e| format!("drawing a chip: {e}"))?;
+    encode(&m, "PNG", &[])
+}
+
+/// Encodes a BGR Mat through GDAL's `driver` in memory.
+fn encode(m: &Mat, driver: &str, options: &[&str]) -> Result<Vec<u8>, String> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let (w, h) = (m.cols() as usize, m.rows() as usize);
+    let bytes = m.data_bytes().map_err(|e| e.to_string())?;
+    let run = || -> gdal::errors::Result<Vec<u8>> {
+        let mem = DriverManager::get_driver_by_name("MEM")?;
+        let ds = mem.create_with_band_type::<u8, _>("", w, h, 3)?;
+        // BGR interleaved to R, G, B bands.
+        for (band, channel) in [(1, 2), (2, 1), (3, 0)] {
+            let plane: Vec<u8> = bytes.iter().skip(channel).step_by(3).copied().collect();
+            ds.rasterband(band)?
+                .write((0, 0), (w, h), &mut Buffer::new((w, h), plane))?;
+        }
+        let name = format!(
+            "/vsimem/gcp-tagger-picture-{}-{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        );
+        let out = DriverManager::get_driver_by_name(driver)?;
+        let copy = ds.create_copy(
+            &out,
+            &name,
+            &RasterCreationOptions::from_iter(options.iter().copied()),
+        )?;
+        drop(copy);
+        gdal::vsi::get_vsi_mem_file_bytes_owned(&name)
+    };
+    run().map_err(|e| format!("encoding a {driver} picture: {e}"))
+}
+
+/// A frame reduced by block averages as its rows stream past.
+pub struct Preview {
+    width: usize,
+    height: usize,
+    /// Frame pixels per preview pixel, each way.
+    factor: usize,
+    sums: Vec<u32>,
+    counts: Vec<u32>,
+    /// The next frame row expected.
+    next_row: usize,
+}
+
+impl Preview {
+    /// A preview of a `width` x `height` frame.
+    pub fn new(width: usize, height: usize) -> Preview {
+        let factor = width.max(height).div_ceil(PREVIEW_PX).max(1);
+        let (pw, ph) = (width.div_ceil(factor), height.div_ceil(factor));
+        Preview {
+            width: pw,
+            height: ph,
+            factor,
+            sums: vec![0; pw * ph],
+            counts: vec![0; pw * ph],
+            next_row: 0,
+        }
+    }
+
+    /// Adds frame rows `y0..` from `rows` (`w`-pixel rows); rows already
+    /// added (strips overlap) are skipped.
+    pub fn add_rows(&mut self, rows: &[u8], w: usize, y0: usize) {
+        let n = rows.len() / w;
+        for r in 0..n {
+            let y = y0 + r;
+            if y < self.next_row {
+                continue;
+            }
+            let py = y / self.factor;
+            if py >= self.height {
+                break;
+            }
+            let row = &rows[r * w..(r + 1) * w];
+            let base = py * self.width;
+            for (x, v) in row.iter().enumerate() {
+                self.sums[base + x / self.factor] += *v as u32;
+                self.counts[base + x / self.factor] += 1;
+            }
+            self.next_row = y + 1;
+        }
+    }
+
+    /// The preview with `targets` circled and labelled, as JPEG bytes.
+    pub fn jpeg(&self, targets: &[&Detection]) -> Result<Vec<u8>, String> {
+        let grey: Vec<u8> = self
+            .sums
+            .iter()
+            .zip(&self.counts)
+            .map(|(s, c)| if *c == 0 { 0 } else { (s / c) as u8 })
+            .collect();
+        let f = self.factor as f64;
+        let draw = || -> opencv::Result<Mat> {
+            let mut m = bgr(&grey, self.width, self.height, 1)?;
+            for d in targets {
+                let c = ((d.center.0 + 0.5) / f - 0.5, (d.center.1 + 0.5) / f - 0.5);
+                let r = (0.75 * d.size_px / f).max(8.0);
+                imgproc::circle(
+                    &mut m,
+                    fixed(c),
+                    (r * (1 << SHIFT) as f64) as i32,
+                    colour(OUTLINE),
+                    2,
+                    imgproc::LINE_AA,
+                    SHIFT,
+                )?;
+                let label = label(d);
+                let at = Point::new((c.0 + r + 3.0) as i32, (c.1 - r).max(12.0) as i32);
+                for (thick, col) in [(3, (0.0, 0.0, 0.0)), (1, OUTLINE)] {
+                    imgproc::put_text(
+                        &mut m,
+                        &label,
+                        at,
+                        imgproc::FONT_HERSHEY_SIMPLEX,
+                        0.5,
+                        colour(col),
+                        thick,
+                        imgproc::LINE_AA,
+                        false,
+                    )?;
+                }
+            }
+            Ok(m)
+        };
+        let m = draw().map_err(|e| format!("drawing a preview: {e}"))?;
+        encode(&m, "JPEG", &["QUALITY=85"])
+    }
+}
+
+/// A detection's label: its id, or its kind for printed targets.
+pub fn label(d: &Detection) -> String {
+    match (d.marker_type, d.marker_id) {
+        (_, Some(id)) => format!("{} {id}", d.marker_type),
+        (MarkerType::Crosshair, None) => "cross".into(),
+        (m, None) => m.to_string(),
+    }
+}
+
+/// A frame's pictures: one chip per target, in the result's order, and
+/// the preview.
+#[derive(Debug, Clone, Default)]
+pub struct Pictures {
+    pub chips: Vec<Vec<u8>>,
+    pub preview: Vec<u8>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_preview_averages_blocks_and_skips_rows_seen_twice() {
+        let (w, h) = (3200, 10);
+        let mut p = Preview::new(w, h);
+        assert_eq!(p.factor, 2);
+        let rows: Vec<u8> = (0..w * 6)
+            .map(|i| if i % w < w / 2 { 10 } else { 200 })
+            .collect();
+        p.add_rows(&rows, w, 0);
+        // Rows 4..10, of which 4 and 5 were added already.
+        p.add_rows(&rows, w, 4);
+        assert_eq!(p.counts[0], 4);
+        assert_eq!(p.counts[4 * p.width], 4);
+        assert_eq!(p.sums[0] / p.counts[0], 10);
+        assert_eq!(p.sums[p.width - 1] / p.counts[p.width - 1], 200);
+    }
+}

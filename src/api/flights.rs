@@ -16,6 +16,7 @@ use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{results, watch, AppState};
 use crate::jobs::params::PARAM_KEYS;
+use crate::jobs::review::Selection;
 use crate::jobs::{FlightRecord, FlightState, IdemKey, JobParams, JobRecord};
 use crate::pipeline::output::Format;
 
@@ -431,8 +432,9 @@ async fn flight_results(
     state: AppState,
     id: Uuid,
     format: Format,
-    partial: bool,
+    q: &ResultsQuery,
 ) -> Result<Response, ApiError> {
+    let partial = q.partial.unwrap_or(false);
     let flight = state
         .store
         .flight(id)
@@ -449,7 +451,8 @@ async fn flight_results(
         ));
     }
     let stem = format!("flight-{id}");
-    results::render_jobs(&state, jobs, flight.params.crs, format, stem).await
+    let selection = Selection::from_accepted_only(q.accepted_only);
+    results::render_jobs(&state, jobs, flight.params.crs, format, stem, selection).await
 }
 
 /// Targets of every succeeded frame of a flight, sorted by image name, as
@@ -474,7 +477,7 @@ pub async fn get_flight_results(
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let format = results::negotiate(&headers)?;
-    flight_results(state, id, format, q.partial.unwrap_or(false)).await
+    flight_results(state, id, format, &q).await
 }
 
 /// A flight's targets as CSV.
@@ -493,7 +496,7 @@ pub async fn get_flight_results_csv(
     IdPath(id): IdPath,
     ApiQuery(q): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
-    flight_results(state, id, Format::Csv, q.partial.unwrap_or(false)).await
+    flight_results(state, id, Format::Csv, &q).await
 }
 
 /// A flight's targets as GeoJSON (WGS84 points).
@@ -512,7 +515,7 @@ pub async fn get_flight_results_geojson(
     IdPath(id): IdPath,
     ApiQuery(q): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
-    flight_results(state, id, Format::GeoJson, q.partial.unwrap_or(false)).await
+    flight_results(state, id, Format::GeoJson, &q).await
 }
 
 /// Cancels every queued or running job of a flight.

@@ -13,6 +13,7 @@ use super::sources::{self, SourceRequest};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{flights::checked_params, results, watch, AppState};
+use crate::jobs::review::Selection;
 use crate::jobs::IdemKey;
 use crate::jobs::{JobFilter, JobRecord, JobState};
 use crate::pipeline::output::Format;
@@ -284,7 +285,15 @@ async fn job_results(state: AppState, id: Uuid, format: Format) -> Result<Respon
         .flight(job.flight_id)
         .ok_or_else(|| ApiError::not_found("job", id))?;
     let stem = format!("job-{id}");
-    results::render_jobs(&state, vec![job], flight.params.crs, format, stem).await
+    results::render_jobs(
+        &state,
+        vec![job],
+        flight.params.crs,
+        format,
+        stem,
+        Selection::NotRejected,
+    )
+    .await
 }
 
 /// A succeeded job's targets, as CSV or GeoJSON by the `Accept` header

@@ -13,6 +13,7 @@ pub mod jobs;
 pub mod limit;
 pub mod ops;
 pub mod results;
+pub mod review;
 pub mod sources;
 pub mod survey;
 pub mod upload;
@@ -90,6 +91,7 @@ pub struct HttpConfig {
         (name = "flights", description = "Frames submitted together"),
         (name = "results", description = "Targets as CSV or GeoJSON"),
         (name = "survey", description = "Surveyed ground control points and the GCP files for photogrammetry software"),
+        (name = "review", description = "Each detection's chip, each frame's preview, and a reviewer's accept or reject"),
         (name = "operations", description = "Health and metrics"),
     )
 )]
@@ -135,6 +137,10 @@ fn api_routes() -> OpenApiRouter<AppState> {
         .routes(routes!(survey::put_survey, survey::get_survey))
         .routes(routes!(survey::put_assignments))
         .routes(routes!(survey::get_export))
+        .routes(routes!(review::flight_observations))
+        .routes(routes!(review::get_chip))
+        .routes(routes!(review::get_preview))
+        .routes(routes!(review::put_review))
         .routes(routes!(ops::livez))
         .routes(routes!(ops::readyz))
         .routes(routes!(ops::metrics))

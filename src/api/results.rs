@@ -6,6 +6,7 @@ use axum::response::{IntoResponse, Response};
 
 use super::error::ApiError;
 use super::AppState;
+use crate::jobs::review::Selection;
 use crate::jobs::JobRecord;
 use crate::pipeline::output::Format;
 
@@ -49,10 +50,11 @@ pub async fn render_jobs(
     crs: String,
     format: Format,
     file_stem: String,
+    selection: Selection,
 ) -> Result<Response, ApiError> {
     let data = state.data.clone();
     let text = tokio::task::spawn_blocking(move || {
-        crate::jobs::results::render_jobs(&data, &jobs, &crs, format)
+        crate::jobs::results::render_jobs(&data, &jobs, &crs, format, selection)
             .map_err(|e| ApiError::internal("rendering results", e))
     })
     .await

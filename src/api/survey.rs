@@ -14,6 +14,7 @@ use super::extract::{ApiQuery, IdPath};
 use super::views::{GeoJson, ResultsQuery};
 use super::AppState;
 use crate::jobs::gcp::{self, StoredSurvey};
+use crate::jobs::review::Selection;
 use crate::storage::s3::content_type;
 use crate::survey::export::{bundle, BUNDLE, FILES};
 use crate::survey::{Role, Survey};
@@ -279,12 +280,14 @@ pub async fn get_export(
             ),
         ));
     }
+    let selection = Selection::from_accepted_only(q.accepted_only);
     let data = state.data.clone();
-    let mut files =
-        tokio::task::spawn_blocking(move || gcp::flight_exports(&data, &flight, &jobs, &survey))
-            .await
-            .map_err(|e| ApiError::internal("making the exports", e))?
-            .map_err(|e| ApiError::internal("making the exports", e))?;
+    let mut files = tokio::task::spawn_blocking(move || {
+        gcp::flight_exports(&data, &flight, &jobs, &survey, selection)
+    })
+    .await
+    .map_err(|e| ApiError::internal("making the exports", e))?
+    .map_err(|e| ApiError::internal("making the exports", e))?;
     let (name, bytes, disposition) = match index {
         Some(i) => {
             let (name, text) = files.swap_remove(i);

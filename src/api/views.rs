@@ -277,6 +277,9 @@ pub struct ResultsQuery {
     /// Answer with the frames finished so far instead of 409 while jobs
     /// are still queued or running.
     pub partial: Option<bool>,
+    /// Keep only the detections a reviewer accepted (rejected ones are
+    /// always left out).
+    pub accepted_only: Option<bool>,
 }
 
 /// Checks a page size.

@@ -20,6 +20,7 @@ use crate::storage::DataDir;
 use super::gcp;
 use super::model::{FlightId, FlightRecord, JobRecord};
 use super::results::load_frames;
+use super::review::Selection;
 use super::store::Store;
 use crate::pipeline::georef::TargetCrs;
 use crate::pipeline::output::render;
@@ -92,7 +93,7 @@ async fn export(
     let (data, flight) = (data.clone(), flight.clone());
     let files = tokio::task::spawn_blocking(move || {
         // The stored results are read once for every file.
-        let frames = load_frames(&data, &jobs)?;
+        let frames = load_frames(&data, &jobs, Selection::NotRejected)?;
         let crs = TargetCrs::parse(&flight.params.crs).map_err(|e| format!("stored CRS: {e}"))?;
         let mut files = vec![
             ("results.csv", render(Format::Csv, &frames, &crs)),

@@ -9,12 +9,13 @@ use serde::{Deserialize, Serialize};
 use crate::pipeline::georef::Transformer;
 use crate::storage::DataDir;
 use crate::survey::assign::parse_assignments;
-use crate::survey::matching::{match_frames, DEFAULT_PIXEL_TOLERANCE};
+use crate::survey::matching::{match_frames, Matched, DEFAULT_PIXEL_TOLERANCE};
 use crate::survey::parse::{parse_survey, SurveyError};
 use crate::survey::{export, Survey};
 
 use super::model::{FlightId, FlightRecord, JobRecord};
 use super::results::load_frames;
+use super::review::Selection;
 use crate::pipeline::frame::FrameResult;
 
 /// A survey as stored: the uploaded text, the CRS parameter, if any, and
@@ -54,15 +55,17 @@ pub fn load_survey(data: &DataDir, flight: FlightId) -> Result<Option<StoredSurv
     }
 }
 
-/// Every export file of a flight with a survey, from its succeeded jobs.
+/// Every export file of a flight with a survey, from its succeeded jobs'
+/// targets that `selection` keeps.
 /// Blocking: reads results and runs PROJ.
 pub fn flight_exports(
     data: &DataDir,
     flight: &FlightRecord,
     jobs: &[JobRecord],
     survey: &Survey,
+    selection: Selection,
 ) -> Result<Vec<(&'static str, String)>, String> {
-    exports_for(&load_frames(data, jobs)?, flight, survey)
+    exports_for(&load_frames(data, jobs, selection)?, flight, survey)
 }
 
 /// Every export file from frame results already read.
@@ -78,4 +81,14 @@ pub fn exports_for(
     let mut transformer = Transformer::default();
     let matched = match_frames(frames, survey, tolerance, &mut transformer);
     export::all(survey, &matched, tolerance, &mut transformer)
+}
+
+/// Which surveyed point each detection of `frames` is matched to, under
+/// the flight's pixel tolerance.
+pub fn matched_for(frames: &[FrameResult], flight: &FlightRecord, survey: &Survey) -> Matched {
+    let tolerance = flight
+        .params
+        .pixel_tolerance
+        .unwrap_or(DEFAULT_PIXEL_TOLERANCE);
+    match_frames(frames, survey, tolerance, &mut Transformer::default())
 }

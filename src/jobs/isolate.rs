@@ -30,9 +30,10 @@ use std::process::{Child, ChildStdin, Command, ExitCode, Stdio};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::time::Duration;
 
-use crate::pipeline::frame::{detect_frame, FrameError, FrameObserver};
+use crate::pipeline::frame::{detect_frame_pictured, FrameError, FrameObserver};
 use crate::pipeline::georef::Transformer;
 use crate::pipeline::memory::{estimate_frame_bytes, MIB};
+use crate::pipeline::pictures::Pictures;
 use crate::pipeline::raster::{open_frame, RasterError};
 
 use super::params::JobParams;
@@ -373,14 +374,17 @@ fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
     if let (Ok(data), Ok(cpu)) = (data.parse::<u64>(), cpu.parse::<u64>()) {
         limit_self(data, cpu);
     }
-    match detect_frame(frame, &order.image, &options, transformer, &Progress) {
-        Ok(mut result) => {
+    match detect_frame_pictured(frame, &order.image, &options, transformer, &Progress) {
+        Ok((mut result, pictures)) => {
             for w in &mut result.warnings {
                 *w = named(w);
                 say(&format!("warning {}", w.replace('\n', " ")));
             }
             let bytes = serde_json::to_vec(&result).expect("results serialize");
-            match write_whole(&order.result, &bytes) {
+            // Pictures first: a result on disk means its pictures are too.
+            let written = write_pictures(&order.result.with_extension("pictures"), &pictures)
+                .and_then(|()| write_whole(&order.result, &bytes));
+            match written {
                 Ok(()) => say(&format!(
                     "done {} {} {}",
                     result.targets.len(),
@@ -440,6 +444,20 @@ fn limit_self(data: u64, cpu: u64) {
 fn unlimit_self() {
     set_soft_limit(libc::RLIMIT_DATA, u64::MAX);
     set_soft_limit(libc::RLIMIT_CPU, u64::MAX);
+}
+
+/// Writes a job's pictures into `dir` (replaced whole if an earlier
+/// attempt left one): `N.png` per target, `preview.jpg`.
+fn write_pictures(dir: &Path, pictures: &Pictures) -> std::io::Result<()> {
+    match std::fs::remove_dir_all(dir) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
+        _ => {}
+    }
+    std::fs::create_dir_all(dir)?;
+    for (i, chip) in pictures.chips.iter().enumerate() {
+        std::fs::write(dir.join(format!("{i}.png")), chip)?;
+    }
+    write_whole(&dir.join("preview.jpg"), &pictures.preview)
 }
 
 /// Writes `bytes` to `path` through a `.part` file renamed when whole; a

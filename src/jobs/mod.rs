@@ -11,6 +11,7 @@ pub mod params;
 pub mod pool;
 pub mod results;
 pub mod retention;
+pub mod review;
 pub mod store;
 
 pub use model::{FlightId, FlightRecord, FlightState, JobError, JobId, JobRecord, JobState};

@@ -9,29 +9,38 @@ use crate::pipeline::output::{render, Format};
 use crate::storage::DataDir;
 
 use super::model::{JobRecord, JobState};
+use super::review::{self, Selection};
 
-/// Renders the results of the succeeded jobs among `jobs` in `crs`.
+/// Renders the results of the succeeded jobs among `jobs` in `crs`, the
+/// targets `selection` keeps.
 /// Blocking: reads files and builds a PROJ object.
 pub fn render_jobs(
     data: &DataDir,
     jobs: &[JobRecord],
     crs: &str,
     format: Format,
+    selection: Selection,
 ) -> Result<String, String> {
     let crs = TargetCrs::parse(crs).map_err(|e| format!("stored CRS: {e}"))?;
-    let frames = load_frames(data, jobs)?;
+    let frames = load_frames(data, jobs, selection)?;
     Ok(render(format, &frames, &crs))
 }
 
-/// The stored results of the succeeded jobs among `jobs`, by image name.
-pub fn load_frames(data: &DataDir, jobs: &[JobRecord]) -> Result<Vec<FrameResult>, String> {
+/// The stored results of the succeeded jobs among `jobs`, by image name,
+/// with the targets their reviews and `selection` keep.
+pub fn load_frames(
+    data: &DataDir,
+    jobs: &[JobRecord],
+    selection: Selection,
+) -> Result<Vec<FrameResult>, String> {
     let mut frames: Vec<FrameResult> = Vec::with_capacity(jobs.len());
     for job in jobs.iter().filter(|j| j.state == JobState::Succeeded) {
         let path = data.result_path(job.id);
         let bytes =
             std::fs::read(&path).map_err(|e| format!("cannot read a stored result: {e}"))?;
-        let frame = serde_json::from_slice(&bytes)
+        let mut frame = serde_json::from_slice(&bytes)
             .map_err(|e| format!("cannot parse a stored result: {e}"))?;
+        review::load(data, job.id)?.apply(&mut frame, selection);
         frames.push(frame);
     }
     frames.sort_by(|a, b| a.image.cmp(&b.image));

@@ -4,7 +4,8 @@
 //! written upload never looks like a frame.
 //!
 //! Layout: `jobs.sqlite` (the store), `frames/{job}.{ext}`,
-//! `results/{job}.json`, `spool/` (uploads in flight), `owner.lock` (held
+//! `results/{job}.json`, `results/{job}.pictures/` (chips and preview),
+//! `results/{job}.review.json` (accepted/rejected targets), `spool/` (uploads in flight), `owner.lock` (held
 //! by the one server using the folder).
 
 use std::fs::{File, TryLockError};
@@ -90,6 +91,17 @@ impl DataDir {
         self.root.join("results").join(format!("{job}.json"))
     }
 
+    /// A job's pictures: `N.png` per target (its place in the result) and
+    /// `preview.jpg`; written by the worker before the result.
+    pub fn pictures_dir(&self, job: Uuid) -> PathBuf {
+        self.root.join("results").join(format!("{job}.pictures"))
+    }
+
+    /// A job's reviews of its targets (accepted / rejected).
+    pub fn review_path(&self, job: Uuid) -> PathBuf {
+        self.root.join("results").join(format!("{job}.review.json"))
+    }
+
     /// Bytes free for unprivileged writers on the data folder's filesystem.
     pub fn free_bytes(&self) -> io::Result<u64> {
         use std::os::unix::ffi::OsStrExt;
@@ -124,10 +136,18 @@ impl DataDir {
         std::fs::rename(&tmp, path)
     }
 
-    /// Removes a job's frame and result; missing files are fine.
+    /// Removes a job's frame, result, pictures and reviews; missing files
+    /// are fine.
     pub fn remove_job_files(&self, job: Uuid, ext: &str) {
         remove_quietly(&self.frame_path(job, ext));
         remove_quietly(&self.result_path(job));
+        remove_quietly(&self.review_path(job));
+        let pictures = self.pictures_dir(job);
+        if let Err(e) = std::fs::remove_dir_all(&pictures) {
+            if e.kind() != io::ErrorKind::NotFound {
+                tracing::warn!(path = %pictures.display(), error = %e, "cannot remove a job's pictures");
+            }
+        }
     }
 
     /// Removes a job's frame only; a missing file is fine.

@@ -12,6 +12,7 @@ pub mod idempotency;
 pub mod jobs;
 pub mod limit;
 pub mod ops;
+pub mod page;
 pub mod results;
 pub mod review;
 pub mod sources;
@@ -227,6 +228,7 @@ pub fn router(state: AppState, config: &HttpConfig) -> Router {
     let request_id = HeaderName::from_static("x-request-id");
     let mut app = routes
         .merge(SwaggerUi::new("/docs").url("/openapi.json", spec))
+        .merge(page::routes())
         .fallback(error::not_found)
         .method_not_allowed_fallback(error::method_not_allowed)
         // Uploads enforce their own limits while streaming (see upload).
@@ -339,7 +341,7 @@ async fn gate(
 ) -> Result<Response, ApiError> {
     let path = req.uri().path();
     let limited = !gate.limiter.is_off() && !limit::UNLIMITED.contains(&path);
-    let open = gate.keys.is_empty() || OPEN_PATHS.contains(&path);
+    let open = gate.keys.is_empty() || OPEN_PATHS.contains(&path) || page::PATHS.contains(&path);
     let address = req
         .extensions()
         .get::<ConnectInfo<SocketAddr>>()

@@ -4,6 +4,7 @@ mod server;
 mod support;
 
 mod accuracy;
+mod browser;
 mod cli;
 mod durability;
 mod fuzz;

@@ -11,6 +11,7 @@ mod fuzz;
 mod gcp;
 mod georef;
 mod hostile;
+mod pictures;
 mod printed;
 mod real;
 mod s3;

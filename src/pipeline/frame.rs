@@ -237,7 +237,7 @@ fn run_frame(
     options: &FrameOptions,
     transformer: &mut Transformer,
     observer: &dyn FrameObserver,
-    mut pictures: Option<&mut Pictures>,
+    pictures: Option<&mut Pictures>,
 ) -> Result<FrameResult, FrameError> {
     let header = frame.header().clone();
     let (w, h) = (header.width, header.height);
@@ -342,7 +342,7 @@ fn run_frame(
         ));
     }
     dedup::remove_duplicates(&mut found);
-    if let (Some(out), Some(preview)) = (pictures.as_deref_mut(), preview) {
+    if let (Some(out), Some(preview)) = (pictures, preview) {
         make_pictures(out, &found, &crops, &preview)?;
     }
 

@@ -28,6 +28,8 @@ fn main() {
         return;
     }
     let root = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("bench-frames");
+    // BENCH_ONLY=pictures runs that table alone.
+    let only = std::env::var("BENCH_ONLY").ok();
     let sets = [
         Set {
             name: "4000x3000 JPEG",
@@ -54,6 +56,10 @@ fn main() {
             },
         },
     ];
+    if only.as_deref() == Some("pictures") {
+        pictures(&root, &sets[0]);
+        return;
+    }
     println!(
         "| frames | threads | MP/s | peak RSS MiB | recall | centre error median px | p95 px |"
     );
@@ -115,7 +121,54 @@ fn main() {
         );
     }
 
+    pictures(&root, &sets[0]);
     hard_cases(&root);
+}
+
+/// What chips and previews add to a flight: `detect` with and without
+/// `--chips` on the same frames, 2 threads, best of three runs each
+/// (alternating, so a slow spell of the machine hits both).
+fn pictures(root: &Path, set: &Set) {
+    let dir = root.join(format!(
+        "{}x{}-{}",
+        set.spec.width, set.spec.height, set.spec.frames
+    ));
+    if !dir.join("truth.csv").exists() {
+        generate(&dir, &set.spec);
+    }
+    println!();
+    println!(
+        "| pictures ({} x{}, 2 threads) | without s | with --chips s | added | chips |",
+        set.name, set.spec.frames
+    );
+    println!("|---|---|---|---|---|");
+    for mode in ["apriltag", "crosshair"] {
+        let chips = dir.with_extension(format!("{mode}.chips"));
+        let out = dir.with_extension(format!("{mode}.pictures.csv"));
+        let (mut without, mut with) = (f64::MAX, f64::MAX);
+        for _ in 0..3 {
+            let args = ["--threads", "2", "--marker-type", mode];
+            without = without.min(run_detect(&dir, &out, &args).0);
+            let _ = std::fs::remove_dir_all(&chips);
+            let chips_arg = chips.display().to_string();
+            let mut args = args.to_vec();
+            args.extend(["--chips", &chips_arg]);
+            with = with.min(run_detect(&dir, &out, &args).0);
+        }
+        let n = std::fs::read_dir(&chips)
+            .map(|d| {
+                d.filter(|e| {
+                    e.as_ref()
+                        .is_ok_and(|e| e.file_name().to_string_lossy().ends_with(".png"))
+                })
+                .count()
+            })
+            .unwrap_or(0);
+        println!(
+            "| {mode} | {without:.2} | {with:.2} | {:+.1}% | {n} |",
+            100.0 * (with / without - 1.0)
+        );
+    }
 }
 
 /// AprilTag's hard cases, ours against the reference detector at its

@@ -119,7 +119,9 @@ pub fn run_one_pictured(
     let span = tracing::info_span!("frame", image = %input.name);
     let _enter = span.enter();
     let frame = open_frame(&input.path)?;
-    let need = estimate_frame_bytes(frame.header(), options.tile_size);
+    let header = frame.header();
+    let need = estimate_frame_bytes(header, options.tile_size)
+        + super::pictures::reserve_bytes(header.width, header.height, options.max_target_px);
     let _permit = budget.acquire(need)?;
     let (result, pictures) =
         detect_frame_pictured(frame, &input.name, options, transformer, &NoObserver)?;

@@ -343,7 +343,7 @@ fn run_frame(
     }
     dedup::remove_duplicates(&mut found);
     if let (Some(out), Some(preview)) = (pictures, preview) {
-        make_pictures(out, &found, &crops, &preview)?;
+        make_pictures(out, &found, &crops, preview)?;
     }
 
     let (world, lonlat) = georeference(&header, &found, &options.crs, transformer, &mut warnings);
@@ -375,7 +375,7 @@ fn make_pictures(
     out: &mut Pictures,
     found: &[Detection],
     crops: &[(Detection, Crop)],
-    preview: &Preview,
+    preview: Preview,
 ) -> Result<(), FrameError> {
     let picture_error = |message: String| FrameError::Picture(message);
     for d in found {

@@ -190,12 +190,15 @@ fn encode(m: &Mat, driver: &str, options: &[&str]) -> Result<Vec<u8>, String> {
 
 /// A frame reduced by block averages as its rows stream past.
 pub struct Preview {
+    frame_width: usize,
     width: usize,
     height: usize,
     /// Frame pixels per preview pixel, each way.
     factor: usize,
     sums: Vec<u32>,
-    counts: Vec<u32>,
+    /// Frame rows added to each preview row (a frame cut off part-way
+    /// leaves the last ones short).
+    rows: Vec<u32>,
     /// The next frame row expected.
     next_row: usize,
 }
@@ -206,11 +209,12 @@ impl Preview {
         let factor = width.max(height).div_ceil(PREVIEW_PX).max(1);
         let (pw, ph) = (width.div_ceil(factor), height.div_ceil(factor));
         Preview {
+            frame_width: width,
             width: pw,
             height: ph,
             factor,
             sums: vec![0; pw * ph],
-            counts: vec![0; pw * ph],
+            rows: vec![0; ph],
             next_row: 0,
         }
     }
@@ -232,20 +236,16 @@ impl Preview {
             let base = py * self.width;
             for (x, v) in row.iter().enumerate() {
                 self.sums[base + x / self.factor] += *v as u32;
-                self.counts[base + x / self.factor] += 1;
             }
+            self.rows[py] += 1;
             self.next_row = y + 1;
         }
     }
 
     /// The preview with `targets` circled and labelled, as JPEG bytes.
-    pub fn jpeg(&self, targets: &[&Detection]) -> Result<Vec<u8>, String> {
-        let grey: Vec<u8> = self
-            .sums
-            .iter()
-            .zip(&self.counts)
-            .map(|(s, c)| if *c == 0 { 0 } else { (s / c) as u8 })
-            .collect();
+    pub fn jpeg(self, targets: &[&Detection]) -> Result<Vec<u8>, String> {
+        let grey = self.grey();
+        drop(self.sums);
         let f = self.factor as f64;
         let draw = || -> opencv::Result<Mat> {
             let mut m = bgr(&grey, self.width, self.height, 1)?;
@@ -284,6 +284,53 @@ impl Preview {
     }
 }
 
+impl Preview {
+    /// The block means (the sums are freed by the caller).
+    fn grey(&self) -> Vec<u8> {
+        // Frame columns in each preview column: `factor`, the last fewer.
+        let cols = |px: usize| (self.frame_width - px * self.factor).min(self.factor) as u32;
+        let mut grey = vec![0u8; self.sums.len()];
+        for py in 0..self.height {
+            for px in 0..self.width {
+                let n = cols(px) * self.rows[py];
+                let i = py * self.width + px;
+                grey[i] = if n == 0 { 0 } else { (self.sums[i] / n) as u8 };
+            }
+        }
+        grey
+    }
+
+    /// Bytes a preview of a `width` x `height` frame holds at most: the
+    /// sums while the frame streams, then the grey, colour and encoding
+    /// copies (the strip is freed by then).
+    pub fn bytes(width: usize, height: usize) -> u64 {
+        let factor = width.max(height).div_ceil(PREVIEW_PX).max(1);
+        let pixels = (width.div_ceil(factor) * height.div_ceil(factor)) as u64;
+        PREVIEW_BYTES_PER_PIXEL * pixels
+    }
+}
+
+/// What a preview holds per pixel at its peak: u32 sums (4), then grey (1),
+/// BGR drawing (3), GDAL's in-memory bands (3) and the encoded file (~1).
+const PREVIEW_BYTES_PER_PIXEL: u64 = 12;
+
+/// What making a frame's pictures adds to its working set (see
+/// [`super::memory::estimate_frame_bytes`]).
+pub fn reserve_bytes(width: usize, height: usize, max_target_px: usize) -> u64 {
+    Preview::bytes(width, height) + chips_bytes(max_target_px)
+}
+
+/// Bytes the chips of a frame may hold: crops of up to three times the
+/// largest target, for up to [`CHIPS_RESERVED`] detections.
+pub fn chips_bytes(max_target_px: usize) -> u64 {
+    let side = (3 * max_target_px).max(MIN_CHIP_PX) as u64;
+    CHIPS_RESERVED * side * side
+}
+
+/// Detections per frame whose crops the reservation covers; a frame with
+/// more (a clutter-heavy printed search) holds more, briefly.
+const CHIPS_RESERVED: u64 = 16;
+
 /// A detection's label: its id, or its kind for printed targets.
 pub fn label(d: &Detection) -> String {
     match (d.marker_type, d.marker_id) {
@@ -316,9 +363,10 @@ mod tests {
         p.add_rows(&rows, w, 0);
         // Rows 4..10, of which 4 and 5 were added already.
         p.add_rows(&rows, w, 4);
-        assert_eq!(p.counts[0], 4);
-        assert_eq!(p.counts[4 * p.width], 4);
-        assert_eq!(p.sums[0] / p.counts[0], 10);
-        assert_eq!(p.sums[p.width - 1] / p.counts[p.width - 1], 200);
+        assert_eq!(p.rows[..5], [2, 2, 2, 2, 2]);
+        let grey = p.grey();
+        assert_eq!(grey[0], 10);
+        assert_eq!(grey[p.width - 1], 200);
+        assert_eq!(grey[4 * p.width + 1], 10);
     }
 }

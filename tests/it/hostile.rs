@@ -491,6 +491,7 @@ fn the_memory_limit_holds_for_the_whole_process_tree_whatever_the_encoding() {
         assert_eq!(done["jobs"]["succeeded"], 5, "{done}");
         sampler.join().unwrap()
     });
+    eprintln!("server and workers peaked at {} MiB", peak / 1024);
     assert!(
         peak <= 512 * 1024,
         "server and workers peaked at {} MiB over a 512 MiB limit",

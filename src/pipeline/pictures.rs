@@ -294,7 +294,7 @@ impl Preview {
             for px in 0..self.width {
                 let n = cols(px) * self.rows[py];
                 let i = py * self.width + px;
-                grey[i] = if n == 0 { 0 } else { (self.sums[i] / n) as u8 };
+                grey[i] = self.sums[i].checked_div(n).unwrap_or(0) as u8;
             }
         }
         grey

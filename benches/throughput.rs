@@ -126,7 +126,7 @@ fn main() {
 }
 
 /// What chips and previews add to a flight: `detect` with and without
-/// `--chips` on the same frames, 2 threads, best of three runs each
+/// `--chips` on the same frames, 2 threads, best of five runs each
 /// (alternating, so a slow spell of the machine hits both).
 fn pictures(root: &Path, set: &Set) {
     let dir = root.join(format!(
@@ -146,7 +146,7 @@ fn pictures(root: &Path, set: &Set) {
         let chips = dir.with_extension(format!("{mode}.chips"));
         let out = dir.with_extension(format!("{mode}.pictures.csv"));
         let (mut without, mut with) = (f64::MAX, f64::MAX);
-        for _ in 0..3 {
+        for _ in 0..5 {
             let args = ["--threads", "2", "--marker-type", mode];
             without = without.min(run_detect(&dir, &out, &args).0);
             let _ = std::fs::remove_dir_all(&chips);

@@ -231,7 +231,7 @@ async fn picture(
 }
 
 /// One detection's chip: a PNG crop around it (three times its size, at
-/// least 96 px, enlarged to at least 192 px by whole pixels) with its
+/// least 96 px, enlarged to at least 128 px by whole pixels) with its
 /// fitted outline in yellow and its reported centre as a red cross.
 #[utoipa::path(
     get, path = "/v1/jobs/{id}/chips/{index}", tag = "review",

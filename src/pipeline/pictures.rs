@@ -3,28 +3,26 @@
 //!
 //! - a **chip** per detection: a crop of the strip around it (three times
 //!   its size, at least [`MIN_CHIP_PX`]), enlarged to at least
-//!   [`CHIP_VIEW_PX`] by whole pixels (no smoothing), with the fitted
-//!   outline in yellow and the reported centre as a red cross whose lines
-//!   pass through it to a tenth of an enlarged pixel;
+//!   [`CHIP_VIEW_PX`] by whole pixels (no smoothing; the page shows them
+//!   larger), with the fitted outline in yellow and the reported centre as
+//!   a red cross whose lines pass through it (drawn at 1/256 px);
 //! - a **preview**: the frame reduced by block averages to at most
 //!   [`PREVIEW_PX`] a side, built up strip by strip, with every detection
 //!   circled and labelled.
 //!
 //! Pictures are grey (the pipeline reads one luminance band) with colour
-//! drawings; chips are PNG, previews JPEG, both encoded by GDAL.
+//! drawings; chips are PNG, previews JPEG, both encoded by OpenCV.
 
-use gdal::raster::{Buffer, RasterCreationOptions};
-use gdal::DriverManager;
-use opencv::core::{Mat, Point, Scalar, Vector, CV_8UC3};
-use opencv::imgproc;
+use opencv::core::{Mat, Point, Scalar, Size, Vector};
 use opencv::prelude::*;
+use opencv::{imgcodecs, imgproc};
 
 use super::detect::{Detection, MarkerType};
 
 /// Least side of a chip's crop, in frame pixels.
 pub const MIN_CHIP_PX: usize = 96;
 /// Least side of a chip as stored: small crops are enlarged to it.
-pub const CHIP_VIEW_PX: usize = 192;
+pub const CHIP_VIEW_PX: usize = 128;
 /// Largest side of a preview.
 pub const PREVIEW_PX: usize = 1600;
 /// Fractional bits of OpenCV's drawing coordinates (1/256 px).
@@ -100,17 +98,16 @@ fn fixed(p: (f64, f64)) -> Point {
 
 /// Grey bytes as a BGR Mat, each pixel repeated `zoom` x `zoom`.
 fn bgr(grey: &[u8], w: usize, h: usize, zoom: usize) -> opencv::Result<Mat> {
-    let (zw, zh) = (w * zoom, h * zoom);
-    let mut m = Mat::new_rows_cols_with_default(zh as i32, zw as i32, CV_8UC3, Scalar::all(0.0))?;
-    let data = m.data_bytes_mut()?;
-    for y in 0..zh {
-        for x in 0..zw {
-            let v = grey[(y / zoom) * w + x / zoom];
-            let o = (y * zw + x) * 3;
-            data[o..o + 3].copy_from_slice(&[v, v, v]);
-        }
+    let grey = Mat::new_rows_cols_with_data(h as i32, w as i32, grey)?;
+    let mut colour = Mat::default();
+    imgproc::cvt_color_def(&grey, &mut colour, imgproc::COLOR_GRAY2BGR)?;
+    if zoom == 1 {
+        return Ok(colour);
     }
-    Ok(m)
+    let mut zoomed = Mat::default();
+    let side = Size::new((w * zoom) as i32, (h * zoom) as i32);
+    imgproc::resize(&colour, &mut zoomed, side, 0.0, 0.0, imgproc::INTER_NEAREST)?;
+    Ok(zoomed)
 }
 
 /// The chip of `d` from its crop, as PNG bytes.
@@ -153,39 +150,19 @@ pub fn chip_png(crop: &Crop, d: &Detection) -> Result<Vec<u8>, String> {
         Ok(m)
     };
     let m = draw().map_err(|e| format!("drawing a chip: {e}"))?;
-    encode(&m, "PNG", &[])
+    // zlib's fastest level: chips are small and a third of their cost was
+    // deflate at the default level.
+    encode(&m, ".png", &[imgcodecs::IMWRITE_PNG_COMPRESSION, 1])
 }
 
-/// Encodes a BGR Mat through GDAL's `driver` in memory.
-fn encode(m: &Mat, driver: &str, options: &[&str]) -> Result<Vec<u8>, String> {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static NEXT: AtomicU64 = AtomicU64::new(0);
-    let (w, h) = (m.cols() as usize, m.rows() as usize);
-    let bytes = m.data_bytes().map_err(|e| e.to_string())?;
-    let run = || -> gdal::errors::Result<Vec<u8>> {
-        let mem = DriverManager::get_driver_by_name("MEM")?;
-        let ds = mem.create_with_band_type::<u8, _>("", w, h, 3)?;
-        // BGR interleaved to R, G, B bands.
-        for (band, channel) in [(1, 2), (2, 1), (3, 0)] {
-            let plane: Vec<u8> = bytes.iter().skip(channel).step_by(3).copied().collect();
-            ds.rasterband(band)?
-                .write((0, 0), (w, h), &mut Buffer::new((w, h), plane))?;
-        }
-        let name = format!(
-            "/vsimem/gcp-tagger-picture-{}-{}",
-            std::process::id(),
-            NEXT.fetch_add(1, Ordering::Relaxed)
-        );
-        let out = DriverManager::get_driver_by_name(driver)?;
-        let copy = ds.create_copy(
-            &out,
-            &name,
-            &RasterCreationOptions::from_iter(options.iter().copied()),
-        )?;
-        drop(copy);
-        gdal::vsi::get_vsi_mem_file_bytes_owned(&name)
-    };
-    run().map_err(|e| format!("encoding a {driver} picture: {e}"))
+/// Encodes a BGR Mat with OpenCV's codecs (libpng, libjpeg) in memory:
+/// `ext` is ".png" or ".jpg", `params` their IMWRITE_* pairs.
+fn encode(m: &Mat, ext: &str, params: &[i32]) -> Result<Vec<u8>, String> {
+    let mut out = Vector::<u8>::new();
+    let params: Vector<i32> = params.iter().copied().collect();
+    imgcodecs::imencode(ext, m, &mut out, &params)
+        .map_err(|e| format!("encoding a {ext} picture: {e}"))?;
+    Ok(out.to_vec())
 }
 
 /// A frame reduced by block averages as its rows stream past.
@@ -196,6 +173,10 @@ pub struct Preview {
     /// Frame pixels per preview pixel, each way.
     factor: usize,
     sums: Vec<u32>,
+    /// The frame rows of the preview row being built, summed column by
+    /// column (vectorises; reduced to blocks once per preview row).
+    acc: Vec<u32>,
+    acc_row: usize,
     /// Frame rows added to each preview row (a frame cut off part-way
     /// leaves the last ones short).
     rows: Vec<u32>,
@@ -214,6 +195,8 @@ impl Preview {
             height: ph,
             factor,
             sums: vec![0; pw * ph],
+            acc: vec![0; width],
+            acc_row: 0,
             rows: vec![0; ph],
             next_row: 0,
         }
@@ -232,10 +215,12 @@ impl Preview {
             if py >= self.height {
                 break;
             }
-            let row = &rows[r * w..(r + 1) * w];
-            let base = py * self.width;
-            for (x, v) in row.iter().enumerate() {
-                self.sums[base + x / self.factor] += *v as u32;
+            if py != self.acc_row {
+                self.flush();
+                self.acc_row = py;
+            }
+            for (a, v) in self.acc.iter_mut().zip(&rows[r * w..(r + 1) * w]) {
+                *a += *v as u32;
             }
             self.rows[py] += 1;
             self.next_row = y + 1;
@@ -243,7 +228,7 @@ impl Preview {
     }
 
     /// The preview with `targets` circled and labelled, as JPEG bytes.
-    pub fn jpeg(self, targets: &[&Detection]) -> Result<Vec<u8>, String> {
+    pub fn jpeg(mut self, targets: &[&Detection]) -> Result<Vec<u8>, String> {
         let grey = self.grey();
         drop(self.sums);
         let f = self.factor as f64;
@@ -280,13 +265,26 @@ impl Preview {
             Ok(m)
         };
         let m = draw().map_err(|e| format!("drawing a preview: {e}"))?;
-        encode(&m, "JPEG", &["QUALITY=85"])
+        encode(&m, ".jpg", &[imgcodecs::IMWRITE_JPEG_QUALITY, 85])
     }
 }
 
 impl Preview {
+    /// Reduces the accumulated frame rows into their preview row's sums.
+    fn flush(&mut self) {
+        let base = self.acc_row * self.width;
+        for (sum, block) in self.sums[base..base + self.width]
+            .iter_mut()
+            .zip(self.acc.chunks(self.factor))
+        {
+            *sum += block.iter().sum::<u32>();
+        }
+        self.acc.fill(0);
+    }
+
     /// The block means (the sums are freed by the caller).
-    fn grey(&self) -> Vec<u8> {
+    fn grey(&mut self) -> Vec<u8> {
+        self.flush();
         // Frame columns in each preview column: `factor`, the last fewer.
         let cols = |px: usize| (self.frame_width - px * self.factor).min(self.factor) as u32;
         let mut grey = vec![0u8; self.sums.len()];
@@ -310,8 +308,9 @@ impl Preview {
     }
 }
 
-/// What a preview holds per pixel at its peak: u32 sums (4), then grey (1),
-/// BGR drawing (3), GDAL's in-memory bands (3) and the encoded file (~1).
+/// What a preview holds per pixel, with margin: u32 sums (4) and the row
+/// accumulator while the frame streams, then grey (1), the BGR drawing (3)
+/// and the encoder's buffers and file (~2).
 const PREVIEW_BYTES_PER_PIXEL: u64 = 12;
 
 /// What making a frame's pictures adds to its working set (see
@@ -365,6 +364,7 @@ mod tests {
         p.add_rows(&rows, w, 4);
         assert_eq!(p.rows[..5], [2, 2, 2, 2, 2]);
         let grey = p.grey();
+        let p = &p;
         assert_eq!(grey[0], 10);
         assert_eq!(grey[p.width - 1], 200);
         assert_eq!(grey[4 * p.width + 1], 10);

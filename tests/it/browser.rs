@@ -86,6 +86,12 @@ impl Browser {
     }
 
     fn command(&self, method: &str, path: &str, body: Value) -> Value {
+        self.try_command(method, path, body)
+            .unwrap_or_else(|e| panic!("WebDriver {path}: {e}"))
+    }
+
+    /// A command whose WebDriver error (`no such alert`, ...) is returned.
+    fn try_command(&self, method: &str, path: &str, body: Value) -> Result<Value, String> {
         let url = format!("{}/session/{}{path}", self.base, self.session);
         let request = match method {
             "GET" => self.http.get(url),
@@ -93,10 +99,24 @@ impl Browser {
             _ => self.http.post(url).json(&body),
         };
         let answer: Value = request.send().unwrap().json().unwrap();
-        if let Some(error) = answer["value"]["error"].as_str() {
-            panic!("WebDriver {path}: {error}: {}", answer["value"]["message"]);
+        match answer["value"]["error"].as_str() {
+            Some(error) => Err(format!("{error}: {}", answer["value"]["message"])),
+            None => Ok(answer["value"].clone()),
         }
-        answer["value"].clone()
+    }
+
+    /// Answers the page's prompt with `text` once it shows.
+    fn answer_prompt(&self, text: &str) -> String {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            if let Ok(question) = self.try_command("GET", "/alert/text", Value::Null) {
+                self.command("POST", "/alert/text", json!({ "text": text }));
+                self.command("POST", "/alert/accept", json!({}));
+                return question.as_str().unwrap_or_default().to_string();
+            }
+            assert!(Instant::now() < deadline, "the page asked for nothing");
+            std::thread::sleep(Duration::from_millis(100));
+        }
     }
 
     fn goto(&self, url: &str) {
@@ -199,7 +219,7 @@ fn truth_ids(dir: &Path) -> Vec<(String, u32)> {
 }
 
 #[test]
-fn a_reviewer_uploads_frames_rejects_a_detection_and_it_leaves_gcp_list() {
+fn a_reviewer_with_a_key_uploads_frames_rejects_a_detection_and_it_leaves_gcp_list() {
     let tmp = tempfile::tempdir().unwrap();
     let frames = tmp.path().join("frames");
     write_flight(
@@ -228,9 +248,26 @@ fn a_reviewer_uploads_frames_rejects_a_detection_and_it_leaves_gcp_list() {
     let survey_path = tmp.path().join("survey.csv");
     std::fs::write(&survey_path, survey).unwrap();
 
-    let server = Server::start(&tmp.path().join("data"), &["--workers", "2"]);
+    // Keys configured: the page must ask for one and send it as the bearer.
+    let key = "review-page-key-0123456789";
+    let server = Server::start(
+        &tmp.path().join("data"),
+        &["--workers", "2", "--api-key", key],
+    );
+    let get = |path: &str| {
+        let r = server
+            .client
+            .get(server.url(path))
+            .bearer_auth(key)
+            .send()
+            .unwrap();
+        assert_eq!(r.status(), 200, "GET {path}");
+        r
+    };
     let browser = Browser::start();
     browser.goto(&server.url("/"));
+    let question = browser.answer_prompt(key);
+    assert!(question.contains("API key"), "{question}");
     browser.find("#drop");
     // The marker types this flight has (the defaults include the printed
     // modes, slower and not needed here).
@@ -262,7 +299,16 @@ fn a_reviewer_uploads_frames_rejects_a_detection_and_it_leaves_gcp_list() {
         .as_str()
         .unwrap()
         .to_string();
-    let gcp_before = server.get_text(&format!("/v1/flights/{flight}/exports/gcp_list.txt"));
+    assert_eq!(
+        server
+            .get(&format!("/v1/flights/{flight}/observations"))
+            .status(),
+        401,
+        "the page got in with its key; without one, no"
+    );
+    let gcp_before = get(&format!("/v1/flights/{flight}/exports/gcp_list.txt"))
+        .text()
+        .unwrap();
     assert_eq!(gcp_before.lines().count(), 1 + n, "{gcp_before}");
 
     // Select the second chip by clicking it and reject it from the keyboard.
@@ -309,7 +355,9 @@ fn a_reviewer_uploads_frames_rejects_a_detection_and_it_leaves_gcp_list() {
     );
     // The review is stored: the API says so after the page is gone.
     drop(browser);
-    let observations = server.get_json(&format!("/v1/flights/{flight}/observations"));
+    let observations: Value = get(&format!("/v1/flights/{flight}/observations"))
+        .json()
+        .unwrap();
     let rejected_now: Vec<&Value> = observations["observations"]
         .as_array()
         .unwrap()

@@ -254,7 +254,7 @@ pub async fn get_chip(
     picture(path, "image/png", format!("detection {index} in job {id}")).await
 }
 
-/// A frame's preview: reduced to at most 1600 px a side, every detection
+/// A frame's preview: reduced to at most 1280 px a side, every detection
 /// circled and labelled.
 #[utoipa::path(
     get, path = "/v1/jobs/{id}/preview", tag = "review",

@@ -24,7 +24,7 @@ pub const MIN_CHIP_PX: usize = 96;
 /// Least side of a chip as stored: small crops are enlarged to it.
 pub const CHIP_VIEW_PX: usize = 128;
 /// Largest side of a preview.
-pub const PREVIEW_PX: usize = 1600;
+pub const PREVIEW_PX: usize = 1280;
 /// Fractional bits of OpenCV's drawing coordinates (1/256 px).
 const SHIFT: i32 = 8;
 

@@ -353,7 +353,7 @@ mod tests {
 
     #[test]
     fn a_preview_averages_blocks_and_skips_rows_seen_twice() {
-        let (w, h) = (3200, 10);
+        let (w, h) = (2 * PREVIEW_PX, 10);
         let mut p = Preview::new(w, h);
         assert_eq!(p.factor, 2);
         let rows: Vec<u8> = (0..w * 6)

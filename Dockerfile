@@ -21,7 +21,6 @@ RUN apt-get update \
     && apt-get install -y --no-install-recommends \
         libopencv-core406=4.6.0+dfsg-12 libopencv-imgproc406=4.6.0+dfsg-12 \
         libopencv-calib3d406=4.6.0+dfsg-12 libopencv-contrib406=4.6.0+dfsg-12 \
-        libopencv-imgcodecs406=4.6.0+dfsg-12 \
         libgdal32=3.6.2+dfsg-1+b2 libproj25=9.1.1-1+b1 proj-data=9.1.1-1 \
         libapriltag3=3.3.0-1+b1 \
         tini=0.19.0-1+b3 ca-certificates=20250419~deb12u2 \

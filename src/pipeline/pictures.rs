@@ -11,11 +11,12 @@
 //!   circled and labelled.
 //!
 //! Pictures are grey (the pipeline reads one luminance band) with colour
-//! drawings; chips are PNG, previews JPEG, both encoded by OpenCV.
+//! drawings; chips are PNG, previews JPEG (the `png` and `jpeg-encoder`
+//! crates).
 
 use opencv::core::{Mat, Point, Scalar, Size, Vector};
+use opencv::imgproc;
 use opencv::prelude::*;
-use opencv::{imgcodecs, imgproc};
 
 use super::detect::{Detection, MarkerType};
 
@@ -28,9 +29,9 @@ pub const PREVIEW_PX: usize = 1280;
 /// Fractional bits of OpenCV's drawing coordinates (1/256 px).
 const SHIFT: i32 = 8;
 
-/// The colours drawn, BGR.
-const CENTRE: (f64, f64, f64) = (0.0, 0.0, 255.0);
-const OUTLINE: (f64, f64, f64) = (0.0, 255.0, 255.0);
+/// The colours drawn, RGB (pictures are drawn in RGB, the encoders' order).
+const CENTRE: (f64, f64, f64) = (255.0, 0.0, 0.0);
+const OUTLINE: (f64, f64, f64) = (255.0, 255.0, 0.0);
 
 fn colour(c: (f64, f64, f64)) -> Scalar {
     Scalar::new(c.0, c.1, c.2, 0.0)
@@ -96,11 +97,11 @@ fn fixed(p: (f64, f64)) -> Point {
     Point::new((p.0 * s).round() as i32, (p.1 * s).round() as i32)
 }
 
-/// Grey bytes as a BGR Mat, each pixel repeated `zoom` x `zoom`.
-fn bgr(grey: &[u8], w: usize, h: usize, zoom: usize) -> opencv::Result<Mat> {
+/// Grey bytes as an RGB Mat, each pixel repeated `zoom` x `zoom`.
+fn rgb(grey: &[u8], w: usize, h: usize, zoom: usize) -> opencv::Result<Mat> {
     let grey = Mat::new_rows_cols_with_data(h as i32, w as i32, grey)?;
     let mut colour = Mat::default();
-    imgproc::cvt_color_def(&grey, &mut colour, imgproc::COLOR_GRAY2BGR)?;
+    imgproc::cvt_color_def(&grey, &mut colour, imgproc::COLOR_GRAY2RGB)?;
     if zoom == 1 {
         return Ok(colour);
     }
@@ -114,7 +115,7 @@ fn bgr(grey: &[u8], w: usize, h: usize, zoom: usize) -> opencv::Result<Mat> {
 pub fn chip_png(crop: &Crop, d: &Detection) -> Result<Vec<u8>, String> {
     let zoom = chip_zoom(crop.side);
     let draw = || -> opencv::Result<Mat> {
-        let mut m = bgr(&crop.grey, crop.side, crop.side, zoom)?;
+        let mut m = rgb(&crop.grey, crop.side, crop.side, zoom)?;
         let corners: Vector<Point> = d
             .corners
             .iter()
@@ -150,19 +151,45 @@ pub fn chip_png(crop: &Crop, d: &Detection) -> Result<Vec<u8>, String> {
         Ok(m)
     };
     let m = draw().map_err(|e| format!("drawing a chip: {e}"))?;
-    // zlib's fastest level: chips are small and a third of their cost was
-    // deflate at the default level.
-    encode(&m, ".png", &[imgcodecs::IMWRITE_PNG_COMPRESSION, 1])
+    encode(&m, Format::Png)
 }
 
-/// Encodes a BGR Mat with OpenCV's codecs (libpng, libjpeg) in memory:
-/// `ext` is ".png" or ".jpg", `params` their IMWRITE_* pairs.
-fn encode(m: &Mat, ext: &str, params: &[i32]) -> Result<Vec<u8>, String> {
-    let mut out = Vector::<u8>::new();
-    let params: Vector<i32> = params.iter().copied().collect();
-    imgcodecs::imencode(ext, m, &mut out, &params)
-        .map_err(|e| format!("encoding a {ext} picture: {e}"))?;
-    Ok(out.to_vec())
+/// How a picture is stored.
+enum Format {
+    /// Lossless, zlib's fast level (chips: the drawing stays exact).
+    Png,
+    /// Quality 85 (previews).
+    Jpeg,
+}
+
+/// Encodes an RGB Mat (the `png` and `jpeg-encoder` crates).
+fn encode(m: &Mat, format: Format) -> Result<Vec<u8>, String> {
+    let bytes = m
+        .data_bytes()
+        .map_err(|e| format!("encoding a picture: {e}"))?;
+    let (w, h) = (m.cols() as u32, m.rows() as u32);
+    let mut out = Vec::new();
+    match format {
+        Format::Png => {
+            let mut encoder = png::Encoder::new(&mut out, w, h);
+            encoder.set_color(png::ColorType::Rgb);
+            encoder.set_depth(png::BitDepth::Eight);
+            encoder.set_compression(png::Compression::Fast);
+            encoder
+                .write_header()
+                .and_then(|mut writer| writer.write_image_data(bytes))
+                .map_err(|e| format!("encoding a PNG: {e}"))?;
+        }
+        Format::Jpeg => {
+            let side = |v: u32| {
+                u16::try_from(v).map_err(|_| format!("a {v} px side is too large for JPEG"))
+            };
+            jpeg_encoder::Encoder::new(&mut out, 85)
+                .encode(bytes, side(w)?, side(h)?, jpeg_encoder::ColorType::Rgb)
+                .map_err(|e| format!("encoding a JPEG: {e}"))?;
+        }
+    }
+    Ok(out)
 }
 
 /// A frame reduced by block averages as its rows stream past.
@@ -233,7 +260,7 @@ impl Preview {
         drop(self.sums);
         let f = self.factor as f64;
         let draw = || -> opencv::Result<Mat> {
-            let mut m = bgr(&grey, self.width, self.height, 1)?;
+            let mut m = rgb(&grey, self.width, self.height, 1)?;
             for d in targets {
                 let c = ((d.center.0 + 0.5) / f - 0.5, (d.center.1 + 0.5) / f - 0.5);
                 let r = (0.75 * d.size_px / f).max(8.0);
@@ -265,7 +292,7 @@ impl Preview {
             Ok(m)
         };
         let m = draw().map_err(|e| format!("drawing a preview: {e}"))?;
-        encode(&m, ".jpg", &[imgcodecs::IMWRITE_JPEG_QUALITY, 85])
+        encode(&m, Format::Jpeg)
     }
 }
 
@@ -309,7 +336,7 @@ impl Preview {
 }
 
 /// What a preview holds per pixel, with margin: u32 sums (4) and the row
-/// accumulator while the frame streams, then grey (1), the BGR drawing (3)
+/// accumulator while the frame streams, then grey (1), the RGB drawing (3)
 /// and the encoder's buffers and file (~2).
 const PREVIEW_BYTES_PER_PIXEL: u64 = 12;
 

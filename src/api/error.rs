@@ -151,6 +151,14 @@ impl From<crate::jobs::StoreError> for ApiError {
                 KEY_TAKEN,
                 "another request with this Idempotency-Key was recorded first",
             ),
+            e @ crate::jobs::StoreError::DuplicateImage(_) => {
+                ApiError::conflict("duplicate_image", e.to_string())
+            }
+            e @ crate::jobs::StoreError::TooManyFrames { .. } => ApiError::new(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                "too_many_frames",
+                e.to_string(),
+            ),
             e => ApiError::internal("the job store failed", e),
         }
     }

@@ -154,7 +154,7 @@ pub async fn commit(
     tokio::task::spawn_blocking(move || {
         let names = jobs.iter().map(|j| j.image.as_str());
         upload::check_names(&store, &target, names, max)?;
-        upload::record(&store, &jobs, target, idem.as_ref())
+        upload::record(&store, &jobs, target, idem.as_ref(), max)
     })
     .await
     .map_err(|e| ApiError::internal("recording the jobs", e))?

@@ -425,12 +425,16 @@ pub fn check_names<'a>(
     Ok(())
 }
 
-/// Records jobs in one store transaction, in a new flight or an existing one.
+/// Records jobs in one store transaction, in a new flight or an existing
+/// one (whose names and limit the store checks again under its lock:
+/// [`check_names`] runs before the upload is moved into place, and two
+/// requests may pass it at once).
 pub fn record(
     store: &crate::jobs::Store,
     jobs: &[NewJob],
     target: Target,
     idem: Option<&IdemKey>,
+    max_frames: usize,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
     let recorded = match target {
         Target::NewFlight(params, export_to) => store
@@ -440,7 +444,7 @@ pub fn record(
                 Some((f, jobs))
             }),
         Target::Flight(id) => store
-            .add_to_flight(id, jobs, idem)
+            .add_to_flight(id, jobs, idem, max_frames)
             .map(|r| r.and_then(|jobs| Some((store.flight(id)?, jobs)))),
     };
     match recorded {
@@ -492,7 +496,7 @@ pub fn commit(
         });
     }
     sync_dir(&data.root().join("frames"));
-    let done = record(store, &jobs, target, idem.as_ref())?;
+    let done = record(store, &jobs, target, idem.as_ref(), max_frames)?;
     // Committed: the frames belong to their jobs now.
     upload.parts.clear();
     Ok(done)

@@ -31,6 +31,15 @@ pub enum StoreError {
     /// Another request with the same Idempotency-Key committed first.
     #[error("job store: idempotency key already used")]
     KeyTaken,
+    /// A frame of this name is in the flight already (or twice in the
+    /// request): names identify frames in results.
+    #[error(
+        "{0}: a frame of this name is already in the flight; names identify frames in results"
+    )]
+    DuplicateImage(String),
+    /// The flight would grow past its limit.
+    #[error("the flight would hold {would} frames, more than the {max} allowed (--max-frames-per-flight)")]
+    TooManyFrames { would: usize, max: usize },
 }
 
 /// A client's `Idempotency-Key` and the request it came with.
@@ -159,6 +168,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     targets INTEGER
 );
 CREATE INDEX IF NOT EXISTS jobs_flight ON jobs(flight_id);
+-- jobs_flight_image (UNIQUE flight_id, image) is created in `Store::open`.
 CREATE TABLE IF NOT EXISTS idempotency (
     key TEXT PRIMARY KEY,
     request TEXT NOT NULL,
@@ -207,6 +217,14 @@ impl Store {
         conn.busy_timeout(Duration::from_secs(5))?;
         conn.execute_batch(SCHEMA)?;
         add_missing_columns(&conn)?;
+        // One frame per name in a flight, enforced by the database too. A
+        // store written before this index may hold duplicates: it opens,
+        // they stay, and new ones are still refused by `add_to_flight`.
+        if let Err(e) = conn.execute_batch(
+            "CREATE UNIQUE INDEX IF NOT EXISTS jobs_flight_image ON jobs(flight_id, image)",
+        ) {
+            tracing::warn!(error = %e, "frame names repeat within a flight in this store; new repeats are refused");
+        }
         let requeued = conn.execute(
             "UPDATE jobs SET state = 'queued', started_at = NULL WHERE state = 'running'",
             [],
@@ -271,6 +289,10 @@ impl Store {
                 attempts: 0,
             }),
         };
+        let mut seen = std::collections::HashSet::new();
+        if let Some(job) = jobs.iter().find(|j| !seen.insert(j.image.as_str())) {
+            return Err(StoreError::DuplicateImage(job.image.clone()));
+        }
         let mut db = self.db();
         let tx = db.transaction()?;
         tx.execute(
@@ -298,15 +320,34 @@ impl Store {
     }
 
     /// Adds jobs to an existing flight; `None` if there is no such flight.
+    /// Checked under the store's lock, so concurrent requests cannot both
+    /// pass: every name new to the flight and once in `jobs`
+    /// ([`StoreError::DuplicateImage`]), the flight at most `max_frames`
+    /// frames ([`StoreError::TooManyFrames`]).
     pub fn add_to_flight(
         &self,
         flight: FlightId,
         jobs: &[NewJob],
         idem: Option<&IdemKey>,
+        max_frames: usize,
     ) -> Result<Option<Vec<JobRecord>>, StoreError> {
         let mut db = self.db();
         if !self.state().flights.contains_key(&flight) {
             return Ok(None);
+        }
+        let mut names: std::collections::HashSet<String> =
+            self.flight_images(flight).into_iter().collect();
+        let would = names.len() + jobs.len();
+        if would > max_frames {
+            return Err(StoreError::TooManyFrames {
+                would,
+                max: max_frames,
+            });
+        }
+        for job in jobs {
+            if !names.insert(job.image.clone()) {
+                return Err(StoreError::DuplicateImage(job.image.clone()));
+            }
         }
         let tx = db.transaction()?;
         let records = insert_jobs(&tx, flight, jobs)?;
@@ -1158,6 +1199,38 @@ mod tests {
             ["partial: rows 1..2 do not decode"]
         );
         assert_eq!(store.job(b.id).unwrap().error, Some(error));
+    }
+
+    #[test]
+    fn a_name_is_recorded_once_per_flight_and_the_limit_holds_in_the_store() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(&dir.path().join("jobs.sqlite")).unwrap();
+        let flight = store
+            .create_flight(&JobParams::default(), &[sourced("a.tif")], None, None)
+            .unwrap();
+        let dup = store.add_to_flight(flight.id, &[sourced("a.tif")], None, 10);
+        assert!(matches!(dup, Err(StoreError::DuplicateImage(n)) if n == "a.tif"));
+        let twice = store.add_to_flight(flight.id, &[sourced("b.tif"), sourced("b.tif")], None, 10);
+        assert!(matches!(twice, Err(StoreError::DuplicateImage(n)) if n == "b.tif"));
+        let many = store.add_to_flight(flight.id, &[sourced("c.tif"), sourced("d.tif")], None, 2);
+        assert!(matches!(
+            many,
+            Err(StoreError::TooManyFrames { would: 3, max: 2 })
+        ));
+        assert_eq!(store.flight_images(flight.id), ["a.tif"]);
+        store
+            .add_to_flight(flight.id, &[sourced("b.tif")], None, 2)
+            .unwrap()
+            .unwrap();
+        assert_eq!(store.flight_jobs(flight.id).unwrap().len(), 2);
+        // The database refuses a repeat on its own too.
+        let db = store.db();
+        let insert = db.execute(
+            "INSERT INTO jobs (id, flight_id, image, ext, bytes, state, created_at)
+             VALUES (?1, ?2, 'a.tif', 'tif', 5, 'queued', 1)",
+            params![uuid::Uuid::now_v7().to_string(), flight.id.to_string()],
+        );
+        assert!(insert.is_err());
     }
 
     #[test]

@@ -668,3 +668,82 @@ fn the_health_probe_tells_a_live_server_from_a_dead_one() {
     assert_eq!(dead.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&dead.stderr).starts_with("error: "));
 }
+
+#[test]
+fn two_requests_adding_the_same_frame_name_at_once_record_it_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = dir.path().join("frames");
+    write_flight(
+        &frames,
+        &FlightSpec {
+            frames: 1,
+            width: 600,
+            height: 400,
+            markers: 1,
+            kind: FileKind::Png,
+            seed: 63,
+            hard: false,
+        },
+    )
+    .unwrap();
+    let first = frames.join("frame_0000.png");
+    let server = Server::start(&dir.path().join("data"), &[]);
+    let r = server.post_files("/v1/flights?crs=EPSG:4326", &[&first]);
+    assert_eq!(r.status(), 201);
+    let flight = r.json::<Value>().unwrap()["flight"]["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    for round in 0..5 {
+        // A fresh name each round, sent from two folders at once, as two
+        // clients would.
+        let name = format!("same{round}.png");
+        let paths: Vec<PathBuf> = ["a", "b"]
+            .iter()
+            .map(|d| {
+                let p = dir.path().join(d).join(&name);
+                std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+                std::fs::copy(&first, &p).unwrap();
+                p
+            })
+            .collect();
+        let barrier = std::sync::Barrier::new(2);
+        let mut statuses: Vec<u16> = std::thread::scope(|s| {
+            let handles: Vec<_> = paths
+                .iter()
+                .map(|p| {
+                    let (server, barrier, flight) = (&server, &barrier, &flight);
+                    s.spawn(move || {
+                        barrier.wait();
+                        server
+                            .post_files(&format!("/v1/flights/{flight}/frames"), &[p.as_path()])
+                            .status()
+                            .as_u16()
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        statuses.sort();
+        assert_eq!(statuses, [201, 409], "round {round}");
+    }
+    let jobs = server.get_json(&format!("/v1/flights/{flight}/jobs"));
+    let mut names: Vec<&str> = jobs["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j["image"].as_str().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "frame_0000.png",
+            "same0.png",
+            "same1.png",
+            "same2.png",
+            "same3.png",
+            "same4.png"
+        ]
+    );
+}

@@ -6,7 +6,7 @@
 
 FROM rust:1-bookworm AS build
 WORKDIR /src
-COPY scripts/setup.sh scripts/setup.sh
+COPY scripts/setup.sh scripts/apt-install.sh scripts/
 RUN bash scripts/setup.sh
 COPY . .
 RUN cargo build --release --locked \

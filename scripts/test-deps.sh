@@ -10,16 +10,4 @@ fi
 
 # A real browser for the review page's end-to-end test: Debian's chromium
 # and its WebDriver server.
-browser=()
-for p in chromium chromium-driver; do
-  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
-    browser+=("$p")
-  fi
-done
-if [ "${#browser[@]}" -gt 0 ]; then
-  if [ "$(id -u)" -eq 0 ]; then SUDO=""; else SUDO="sudo"; fi
-  echo "test-deps: installing ${browser[*]}" >&2
-  export DEBIAN_FRONTEND=noninteractive
-  $SUDO apt-get update -qq
-  $SUDO apt-get install -y -qq --no-install-recommends "${browser[@]}" >/dev/null
-fi
+APT_INSTALL_FOR=test-deps bash "$(dirname "$0")/apt-install.sh" chromium chromium-driver

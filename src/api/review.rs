@@ -17,6 +17,7 @@ use uuid::Uuid;
 use super::error::{ApiError, Problem};
 use super::extract::IdPath;
 use super::AppState;
+use crate::jobs::results::load_result;
 use crate::jobs::review::{self, Reviews, Verdict};
 use crate::jobs::{JobRecord, JobState};
 use crate::pipeline::frame::FrameResult;
@@ -101,13 +102,6 @@ fn view(
     }
 }
 
-/// Reads a succeeded job's stored result, all targets kept.
-fn read_result(state: &AppState, job: &JobRecord) -> Result<FrameResult, String> {
-    let bytes = std::fs::read(state.data.result_path(job.id))
-        .map_err(|e| format!("cannot read a stored result: {e}"))?;
-    serde_json::from_slice(&bytes).map_err(|e| format!("cannot parse a stored result: {e}"))
-}
-
 /// Every detection of a flight's succeeded frames, with its chip URL, its
 /// review and, when the flight has a survey, the surveyed point it is
 /// matched to (rejected detections included, so a rejection can be taken
@@ -141,7 +135,7 @@ pub async fn flight_observations(
     let list = tokio::task::spawn_blocking(move || -> Result<ObservationList, String> {
         let mut read = Vec::with_capacity(jobs.len());
         for job in jobs {
-            let frame = read_result(&inner, &job)?;
+            let frame = load_result(&inner.data, job.id)?;
             let reviews = review::load(&inner.data, job.id)?;
             read.push((job, frame, reviews));
         }
@@ -329,8 +323,8 @@ pub async fn put_review(
     let _guard = REVIEW_LOCK.lock().await;
     let inner = state.clone();
     let answer = tokio::task::spawn_blocking(move || -> Result<ObservationView, ApiError> {
-        let frame =
-            read_result(&inner, &job).map_err(|e| ApiError::internal("reading a result", e))?;
+        let frame = load_result(&inner.data, job.id)
+            .map_err(|e| ApiError::internal("reading a result", e))?;
         if index as usize >= frame.targets.len() {
             return Err(ApiError::new(
                 StatusCode::NOT_FOUND,

@@ -30,10 +30,10 @@ use std::process::{Child, ChildStdin, Command, ExitCode, Stdio};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::time::Duration;
 
-use crate::pipeline::frame::{detect_frame_pictured, FrameError, FrameObserver};
+use crate::pipeline::frame::{detect_frame_pictured, need_bytes, FrameError, FrameObserver};
 use crate::pipeline::georef::Transformer;
-use crate::pipeline::memory::{estimate_frame_bytes, MIB};
-use crate::pipeline::pictures::{self, Pictures};
+use crate::pipeline::memory::MIB;
+use crate::pipeline::pictures::Pictures;
 use crate::pipeline::raster::{open_frame, RasterError};
 
 use super::params::JobParams;
@@ -361,8 +361,7 @@ fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
         }
     };
     let header = frame.header().clone();
-    let need = estimate_frame_bytes(&header, options.tile_size)
-        + pictures::reserve_bytes(header.width, header.height, options.max_target_px);
+    let need = need_bytes(&header, &options, true);
     say(&format!("header {} {} {need}", header.width, header.height));
     let mut line = String::new();
     if std::io::stdin().read_line(&mut line).unwrap_or(0) == 0 {

@@ -8,7 +8,7 @@ use crate::pipeline::georef::TargetCrs;
 use crate::pipeline::output::{render, Format};
 use crate::storage::DataDir;
 
-use super::model::{JobRecord, JobState};
+use super::model::{JobId, JobRecord, JobState};
 use super::review::{self, Selection};
 
 /// Renders the results of the succeeded jobs among `jobs` in `crs`, the
@@ -35,14 +35,17 @@ pub fn load_frames(
 ) -> Result<Vec<FrameResult>, String> {
     let mut frames: Vec<FrameResult> = Vec::with_capacity(jobs.len());
     for job in jobs.iter().filter(|j| j.state == JobState::Succeeded) {
-        let path = data.result_path(job.id);
-        let bytes =
-            std::fs::read(&path).map_err(|e| format!("cannot read a stored result: {e}"))?;
-        let mut frame = serde_json::from_slice(&bytes)
-            .map_err(|e| format!("cannot parse a stored result: {e}"))?;
+        let mut frame = load_result(data, job.id)?;
         review::load(data, job.id)?.apply(&mut frame, selection);
         frames.push(frame);
     }
     frames.sort_by(|a, b| a.image.cmp(&b.image));
     Ok(frames)
+}
+
+/// A succeeded job's stored result, every target kept.
+pub fn load_result(data: &DataDir, job: JobId) -> Result<FrameResult, String> {
+    let bytes = std::fs::read(data.result_path(job))
+        .map_err(|e| format!("cannot read a stored result: {e}"))?;
+    serde_json::from_slice(&bytes).map_err(|e| format!("cannot parse a stored result: {e}"))
 }

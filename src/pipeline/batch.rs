@@ -2,16 +2,16 @@
 //! Results come back in input order, so output bytes do not depend on the
 //! number of threads or on which frame finished first.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use super::frame::{
-    detect_frame, detect_frame_pictured, FrameError, FrameObserver, FrameOptions, FrameResult,
-    NoObserver,
+    detect_frame, detect_frame_pictured, need_bytes, FrameError, FrameObserver, FrameOptions,
+    FrameResult, NoObserver,
 };
 use super::georef::Transformer;
-use super::memory::{estimate_frame_bytes, RamBudget};
+use super::memory::RamBudget;
 use super::raster::open_frame;
 
 /// A frame to process: where it is and what to call it in outputs.
@@ -60,22 +60,14 @@ pub fn run_batch(
                     loop {
                         let i = next.fetch_add(1, Ordering::SeqCst);
                         let Some(input) = inputs.get(i) else { break };
-                        let outcome = match &options.chips {
-                            None => run_one(
-                                input,
-                                &options.frame,
-                                budget,
-                                &mut transformer,
-                                &NoObserver,
-                            ),
-                            Some(dir) => run_one_pictured(
-                                input,
-                                &options.frame,
-                                budget,
-                                &mut transformer,
-                                dir,
-                            ),
-                        };
+                        let outcome = run_one(
+                            input,
+                            &options.frame,
+                            budget,
+                            &mut transformer,
+                            &NoObserver,
+                            options.chips.as_deref(),
+                        );
                         on_frame(input, &outcome);
                         *slots[i].lock().expect("slot lock") = Some(outcome);
                     }
@@ -89,42 +81,29 @@ pub fn run_batch(
         .collect()
 }
 
-/// Opens one frame, waits for its share of the budget, and runs it.
+/// Opens one frame, waits for its share of the budget, and runs it; with
+/// `chips`, writes the frame's chips and preview into that folder as
+/// `NAME.N.png` (N: the target's place in the frame's results, from 0) and
+/// `NAME.preview.jpg`, NAME being the frame's name with `/` as `_`.
 pub fn run_one(
     input: &FrameInput,
     options: &FrameOptions,
     budget: &RamBudget,
     transformer: &mut Transformer,
     observer: &dyn FrameObserver,
+    chips: Option<&Path>,
 ) -> FrameOutcome {
     let span = tracing::info_span!("frame", image = %input.name);
     let _enter = span.enter();
     let frame = open_frame(&input.path)?;
-    let need = estimate_frame_bytes(frame.header(), options.tile_size);
+    let need = need_bytes(frame.header(), options, chips.is_some());
     let _permit = budget.acquire(need)?;
     tracing::debug!(need_mib = need >> 20, "frame admitted");
-    detect_frame(frame, &input.name, options, transformer, observer)
-}
-
-/// [`run_one`], writing the frame's chips and preview into `dir` as
-/// `NAME.N.png` (N: the target's place in the frame's results, from 0) and
-/// `NAME.preview.jpg`, NAME being the frame's name with `/` as `_`.
-pub fn run_one_pictured(
-    input: &FrameInput,
-    options: &FrameOptions,
-    budget: &RamBudget,
-    transformer: &mut Transformer,
-    dir: &std::path::Path,
-) -> FrameOutcome {
-    let span = tracing::info_span!("frame", image = %input.name);
-    let _enter = span.enter();
-    let frame = open_frame(&input.path)?;
-    let header = frame.header();
-    let need = estimate_frame_bytes(header, options.tile_size)
-        + super::pictures::reserve_bytes(header.width, header.height, options.max_target_px);
-    let _permit = budget.acquire(need)?;
+    let Some(dir) = chips else {
+        return detect_frame(frame, &input.name, options, transformer, observer);
+    };
     let (result, pictures) =
-        detect_frame_pictured(frame, &input.name, options, transformer, &NoObserver)?;
+        detect_frame_pictured(frame, &input.name, options, transformer, observer)?;
     let stem = input.name.replace(['/', '\\'], "_");
     let write = |name: String, bytes: &[u8]| {
         std::fs::write(dir.join(&name), bytes).map_err(|e| {

@@ -9,7 +9,7 @@ use super::detect::{
 };
 use super::georef::{Georeference, TargetCrs, Transformer, WGS84};
 use super::pictures::{self, Crop, Pictures, Preview};
-use super::raster::{RasterError, RasterFrame};
+use super::raster::{FrameHeader, RasterError, RasterFrame};
 use super::tiles::TileGrid;
 use super::{dedup, memory};
 
@@ -197,6 +197,17 @@ pub trait FrameObserver {
 /// An observer that watches nothing.
 pub struct NoObserver;
 impl FrameObserver for NoObserver {}
+
+/// Memory a frame's run holds: [`memory::estimate_frame_bytes`], plus its
+/// pictures' when they are made.
+pub fn need_bytes(header: &FrameHeader, options: &FrameOptions, pictures: bool) -> u64 {
+    let pictures = if pictures {
+        pictures::reserve_bytes(header.width, header.height, options.max_target_px)
+    } else {
+        0
+    };
+    memory::estimate_frame_bytes(header, options.tile_size) + pictures
+}
 
 /// Runs detection over an opened frame and georeferences the results.
 pub fn detect_frame(

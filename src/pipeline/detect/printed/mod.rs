@@ -255,7 +255,7 @@ impl PrintedDetector {
         }
         let mut dirs = [unit(a0), unit(a0 + FRAC_PI_2)];
         let width0 = match design.kind {
-            DesignKind::Cross => bar_width_on_ring(&signed, r),
+            DesignKind::Cross => bar_width_on_ring(&ring, sign, r, a0),
             // A checker (the detector holds crosses and checkers only).
             _ => (0.08 * c.size).max(2.5),
         };
@@ -739,15 +739,49 @@ fn orient(d: Pt, like: Pt) -> Pt {
     }
 }
 
-/// A cross's bar width from the light arcs on a ring of radius `r`: the
-/// share of samples above the ring's middle level is four bars' arcs.
-fn bar_width_on_ring(signed: &[f64], r: f64) -> f64 {
-    let (lo, hi) = signed
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
-    let mid = 0.5 * (lo + hi);
-    let light = signed.iter().filter(|v| **v > mid).count() as f64 / signed.len() as f64;
-    (light * std::f64::consts::TAU * r / 4.0).max(2.0)
+/// A cross's bar width from its four light arcs on a ring of radius `r`
+/// (`ring` as sampled, `sign` +1 for light bars), the bars' directions at
+/// `a0` and every quarter turn from it. Each arc is cut at the level
+/// halfway between its own peak and the board beside it, in log grey, so a
+/// shadow over part of the ring moves no cut; an arc of angle a is a chord
+/// of 2 r sin(a/2), the bar's width. The median of the four, since a
+/// marking beside a bar widens its arc.
+fn bar_width_on_ring(ring: &[f64], sign: f64, r: f64, a0: f64) -> f64 {
+    let n = ring.len() as isize;
+    let l: Vec<f64> = ring.iter().map(|v| sign * harmonic::log_grey(*v)).collect();
+    let at = |i: isize| l[i.rem_euclid(n) as usize];
+    let mut widths: Vec<f64> = (0..4)
+        .map(|k| {
+            let c =
+                ((a0 + k as f64 * FRAC_PI_2) / std::f64::consts::TAU * n as f64).round() as isize;
+            let near = n / 16;
+            let peak_i = (c - near..=c + near)
+                .max_by(|a, b| at(*a).total_cmp(&at(*b)))
+                .expect("non-empty");
+            let low = (c - n / 8..=c + n / 8).map(at).fold(f64::MAX, f64::min);
+            let mid = 0.5 * (at(peak_i) + low);
+            // Samples above the cut on each side of the peak, the last
+            // step interpolated to the crossing.
+            let reach = |dir: isize| {
+                let mut i = peak_i;
+                let mut run = 0.0;
+                while (i - peak_i).abs() < n / 4 {
+                    let next = at(i + dir);
+                    if next <= mid {
+                        run += (at(i) - mid) / (at(i) - next).max(1e-9);
+                        break;
+                    }
+                    run += 1.0;
+                    i += dir;
+                }
+                run
+            };
+            let arc = (reach(-1) + reach(1)) * std::f64::consts::TAU / n as f64;
+            2.0 * r * (0.5 * arc.min(0.9 * std::f64::consts::PI)).sin()
+        })
+        .collect();
+    widths.sort_by(f64::total_cmp);
+    (0.5 * (widths[1] + widths[2])).max(2.0)
 }
 
 /// Checker boundary `i`'s polarity: +1 when its +normal side is the

@@ -67,7 +67,7 @@ pub fn one_per_board(found: &mut Vec<Found>) -> Vec<Found> {
 
 /// Of a target found as it is and (maybe) found again with a shadow lifted,
 /// the one whose edges fit their lines or ellipse better.
-pub fn better_fit(first: Found, second: Result<Found, &'static str>) -> Found {
+pub fn better_fit<E>(first: Found, second: Result<Found, E>) -> Found {
     match second {
         Ok(second) if second.rms < first.rms => second,
         _ => first,

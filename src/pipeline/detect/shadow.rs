@@ -131,25 +131,39 @@ impl Lifted {
     }
 }
 
+/// Why a second look, with a shadow lifted, found nothing; `E` is the
+/// detector's own rejection.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SecondLook<E> {
+    /// The first look's rejection is not one a shadow causes.
+    NotTried,
+    /// No straight shadow edge crosses the circle searched.
+    NoShadowEdge,
+    /// What the second look found lies beside the edge, not across it.
+    EdgeOffTarget,
+    /// The detector rejected the copy with the shadow lifted too.
+    Rejected(E),
+}
+
 /// A candidate's verdict with the second look: a target found at first
 /// keeps the better fit of both looks (a shadow's edge can move an
-/// accepted centre); a rejection in `not_shadow` (a reason a shadow does
-/// not cause) stands without a second look; any other gets one. A
-/// rejection carries both looks' reasons ("not tried" for the second).
-pub fn with_second_look(
-    first: Result<Found, &'static str>,
-    not_shadow: &[&str],
-    second: impl FnOnce() -> Result<Found, &'static str>,
-) -> Result<Found, (&'static str, &'static str)> {
+/// accepted centre); a rejection `shadow_may_cause` says a shadow does
+/// not cause stands without a second look; any other gets one. A
+/// rejection carries both looks' reasons.
+pub fn with_second_look<E: Copy + std::fmt::Debug>(
+    first: Result<Found, E>,
+    shadow_may_cause: impl Fn(E) -> bool,
+    second: impl FnOnce() -> Result<Found, SecondLook<E>>,
+) -> Result<Found, (E, SecondLook<E>)> {
     match first {
         Ok(found) => Ok(better_fit(found, second())),
-        Err(why) if not_shadow.contains(&why) => Err((why, "not tried")),
+        Err(why) if !shadow_may_cause(why) => Err((why, SecondLook::NotTried)),
         Err(why) => {
             let second = second();
             if let Ok(f) = &second {
                 // In the tile's frame.
                 tracing::trace!(
-                    why,
+                    why = ?why,
                     x = f.centre.0,
                     y = f.centre.1,
                     "rejected on the first look, accepted on the second"
@@ -177,18 +191,20 @@ pub fn with_second_look(
 /// One edge only: lifting a second one as well (a band's other edge, a
 /// second shadow) found no more targets on 28 frames and made a paving
 /// junction between two perpendicular borders into a checker.
-pub fn second_look(
+pub fn second_look<E>(
     img: &GreyView,
     start: Pt,
     radius: f64,
     (half, half_for): (f64, impl Fn(f64) -> f64),
     reach: impl Fn(f64) -> f64,
-    analyse: impl Fn(&GreyView, Pt) -> Result<Found, &'static str>,
-) -> Result<Found, &'static str> {
-    let edge = find(img, start, radius).ok_or("no shadow edge")?;
+    analyse: impl Fn(&GreyView, Pt) -> Result<Found, E>,
+) -> Result<Found, SecondLook<E>> {
+    let edge = find(img, start, radius).ok_or(SecondLook::NoShadowEdge)?;
     let look = |half: f64| {
         let lifted = lift(img, start, half, &edge);
-        analyse(&lifted.view(), lifted.to_copy(start)).map(|f| lifted.to_tile(f))
+        analyse(&lifted.view(), lifted.to_copy(start))
+            .map(|f| lifted.to_tile(f))
+            .map_err(SecondLook::Rejected)
     };
     let mut found = look(half)?;
     let need = half_for(found.size);
@@ -196,7 +212,7 @@ pub fn second_look(
         found = look(need)?;
     }
     if edge.distance(found.centre).abs() > reach(found.size) {
-        return Err("shadow edge off the target");
+        return Err(SecondLook::EdgeOffTarget);
     }
     Ok(found)
 }

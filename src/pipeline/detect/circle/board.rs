@@ -18,7 +18,7 @@ pub(super) fn board_sides(
     e: &Ellipse,
     polarity: f64,
     board_to_disc: (f64, f64),
-) -> Result<[Option<[f64; 3]>; 4], &'static str> {
+) -> Result<[Option<[f64; 3]>; 4], Rejection> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
     let mut contrasts: Vec<f64> = Vec::new();
@@ -65,16 +65,16 @@ pub(super) fn board_sides(
         }
     }
     if (uniform as f64) < 0.8 * n as f64 {
-        return Err("board not uniform");
+        return Err(Rejection::BoardNotUniform);
     }
     let contrast = pr::quantile(&contrasts, 0.5);
     // The board's noise: second differences of its three samples per ray
     // (a shading gradient cancels), a robust standard deviation.
     let noise = 1.4826 * pr::quantile(&curvature, 0.5) / 6f64.sqrt();
     let fitted = if (ends.len() as f64) < MIN_END_AGREEMENT * n as f64 {
-        Err("board does not end")
+        Err(Rejection::BoardDoesNotEnd)
     } else {
-        fit_board_square(&ends, n).ok_or("board not square")
+        fit_board_square(&ends, n).ok_or(Rejection::BoardNotSquare)
     };
     // Ground of nearly the board's grey runs rays past the board's end here
     // and there; the sides still show where the board's level stops.
@@ -88,17 +88,17 @@ pub(super) fn board_sides(
     // A flat roof around a tank is seldom square: the board's sides
     // must lie as a square's would around this disc.
     if board_aspect(e, &square).is_some_and(|a| a.max(1.0 / a) > MAX_BOARD_ASPECT) {
-        return Err("board not square");
+        return Err(Rejection::BoardNotSquare);
     }
     if !(board_to_disc.0..=board_to_disc.1).contains(&ratio) {
-        return Err("board not square");
+        return Err(Rejection::BoardNotSquare);
     }
     // A side hidden by something lying on or against the board (or ground
     // of the board's grey) has no line.
     let mut lines = [None; 4];
     for (line, side) in lines.iter_mut().zip(&square.sides) {
         let Some(side) = side else { continue };
-        let rough = fit_line(side).ok_or("board side")?;
+        let rough = fit_line(side).ok_or(Rejection::BoardSide)?;
         // Subpixel where the profiles allow (ground of enough contrast);
         // pixel-level sides move the centre more than the perspective bias
         // they would remove.

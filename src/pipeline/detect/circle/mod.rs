@@ -145,18 +145,6 @@ const MAX_SIDE_RMS_PX: f64 = 0.8;
 /// radii for 1:2.5:5) found other edges than the shadow's: 3 discs of
 /// 180 lost on seeds 400, 401 and 900, no bullseye gained.
 const SHADOW_SEARCH: f64 = 3.5;
-/// Rejections that a second look with a shadow lifted is not tried for.
-/// Most rejections on a cluttered frame (1172 of 1430 on clutter seeds
-/// 700-701) are dark blobs without a uniform ring of board around them; on 12 frames of printed circles
-/// every target a second look found had first failed on its board's square.
-/// A candidate of no size a design could have keeps its size in the copy.
-const NOT_SHADOW: [&str; 5] = [
-    "board not uniform",
-    "no edges",
-    "inner fit",
-    "no rings",
-    "size",
-];
 /// Half side, in radii (the candidate's, then the found target's if
 /// larger), of the copy with a shadow lifted: the rays walk to where a
 /// board ends, up to 4.5 radii out.
@@ -190,6 +178,72 @@ const CORNER_SINE: f64 = 0.5;
 /// ended on other clutter here and there, enough to pass the reach test
 /// alone.
 const MIN_CORNER_SHARE: f64 = 0.2;
+
+/// Why a candidate is not a target of the circular designs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rejection {
+    /// No design's size fits the candidate, or the target as measured.
+    Size,
+    /// The rays found too few points on an edge.
+    NoEdges,
+    /// No ellipse fits the innermost edge's points.
+    InnerFit,
+    /// No ring design matches the edges along the rays (and no disc is
+    /// searched).
+    NoRings,
+    /// The rings' edges do not alternate as the design says on enough rays.
+    RingsNotSeen,
+    /// No ellipse fits the outer ring's points.
+    OuterFit,
+    /// A middle ring's points are not an ellipse.
+    RingFit,
+    /// The rings are not ellipses of one shape around one centre.
+    RingsNotConcentric,
+    /// The centre disc's radius over the outer ring's is outside the
+    /// design's range.
+    RingRatio,
+    /// No board of the ring's colour past the outer ring.
+    NoBoard,
+    /// The drawn rings do not match the image all round.
+    RingsNotUniform,
+    /// A disc of a polarity no design searched has.
+    DiscPolarity,
+    /// Too few rays saw an edge.
+    Coverage,
+    /// The light side is too little brighter than the dark one for two
+    /// inks.
+    NotInk,
+    /// The edge points scatter about their ellipse.
+    FitRms,
+    /// A disc's board is not of one level around it.
+    BoardNotUniform,
+    /// A disc's board does not end within the design's proportions.
+    BoardDoesNotEnd,
+    /// A disc's board does not end in a square centred on it.
+    BoardNotSquare,
+    /// A side of a disc's board fits no line.
+    BoardSide,
+}
+
+impl Rejection {
+    /// Whether a shadow's edge across the target can cause this rejection,
+    /// so a second look with the shadow lifted is worth taking. Most
+    /// rejections on a cluttered frame (1172 of 1430 on clutter seeds
+    /// 700-701) are dark blobs without a uniform ring of board around them;
+    /// on 12 frames of printed circles every target a second look found had
+    /// first failed on its board's square. A candidate of no size a design
+    /// could have keeps its size in the copy.
+    fn shadow_may_cause(self) -> bool {
+        !matches!(
+            self,
+            Rejection::BoardNotUniform
+                | Rejection::NoEdges
+                | Rejection::InnerFit
+                | Rejection::NoRings
+                | Rejection::Size
+        )
+    }
+}
 
 /// An ellipse: centre, semi-axes and the direction of `a`.
 #[derive(Debug, Clone, Copy)]
@@ -347,19 +401,19 @@ impl CircleDetector {
         (rings, disc)
     }
 
-    fn analyse(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
+    fn analyse(&self, img: &GreyView, start: Ellipse) -> Result<Found, Rejection> {
         // A contour's radius is within a pixel or two of the edge's.
         let r = start.radius();
         let (rings, disc) = self.possible(((r - 2.0).max(1.0), r + 2.0));
         if rings.is_empty() && !disc {
-            return Err("size");
+            return Err(Rejection::Size);
         }
         // The candidate's own edge: the threshold's contour can miss a
         // small centre disc's edge by a pixel or two.
         let mut e = start;
         for _ in 0..2 {
-            let pass = rays(img, &e, &[1.0], 1.0).ok_or("no edges")?;
-            let refined = fit(&pass.edges[0]).ok_or("inner fit")?;
+            let pass = rays(img, &e, &[1.0], 1.0).ok_or(Rejection::NoEdges)?;
+            let refined = fit(&pass.edges[0]).ok_or(Rejection::InnerFit)?;
             let moved = geometry::dist(refined.c, e.c) + (refined.radius() - e.radius()).abs();
             e = refined;
             if moved < 0.25 {
@@ -368,7 +422,7 @@ impl CircleDetector {
         }
         let (rings, disc) = self.possible((e.radius(), e.radius()));
         if rings.is_empty() && !disc {
-            return Err("size");
+            return Err(Rejection::Size);
         }
         let reach = rings.iter().map(|l| l.reach()).fold(0.0, f64::max);
         let measured = if rings.is_empty() {
@@ -391,7 +445,7 @@ impl CircleDetector {
                 }
             }),
             None if discs => self.disc(img, start, e),
-            None => Err("no rings"),
+            None => Err(Rejection::NoRings),
         }
     }
 
@@ -402,34 +456,34 @@ impl CircleDetector {
         e: Ellipse,
         layout: &RingLayout,
         pos: &[f64],
-    ) -> Result<Found, &'static str> {
+    ) -> Result<Found, Rejection> {
         let last = pos.len() - 1;
         if !self
             .sizes
             .accepts(2.0 * pos[last] * e.radius(), EARLY_SIZE_SLACK)
         {
-            return Err("size");
+            return Err(Rejection::Size);
         }
         let gap = pos[last] - if last == 0 { 0.0 } else { pos[last - 1] };
-        let pass = rays(img, &e, pos, gap.min(0.55 * pos[last])).ok_or("no edges")?;
+        let pass = rays(img, &e, pos, gap.min(0.55 * pos[last])).ok_or(Rejection::NoEdges)?;
         if !is_bullseye(&pass, layout) {
-            return Err("rings not seen");
+            return Err(Rejection::RingsNotSeen);
         }
         let coverage = self.coverage(&pass, pass.edges.len())?;
-        let (inner, inliers) = fit_robust(&pass.edges[0]).ok_or("inner fit")?;
+        let (inner, inliers) = fit_robust(&pass.edges[0]).ok_or(Rejection::InnerFit)?;
         let rms = rms(&inner, &inliers);
         let outer = fit_robust(&pass.edges[last])
             .map(|(e, _)| e)
-            .ok_or("outer fit")?;
+            .ok_or(Rejection::OuterFit)?;
         // Every ring is an ellipse of the outer one's shape around nearly
         // its centre (concentric circles in one plane); the rings a lattice
         // of squares or a paving shows around one of its cells are not.
         for points in &pass.edges[1..] {
-            let (ring, inliers) = fit_robust(points).ok_or("ring fit")?;
+            let (ring, inliers) = fit_robust(points).ok_or(Rejection::RingFit)?;
             if (inliers.len() as f64) < MIN_RING_INLIERS * points.len() as f64
                 || rings::rms(&ring, &inliers) > MAX_FIT_RMS_PX + 0.01 * ring.radius()
             {
-                return Err("ring fit");
+                return Err(Rejection::RingFit);
             }
         }
         for ring in [&inner, &outer] {
@@ -437,20 +491,20 @@ impl CircleDetector {
             if (aspect(ring) - aspect(&outer)).abs() > MAX_ASPECT_GAP + 0.5 / ring.radius()
                 || geometry::dist(ring.c, outer.c) > MAX_RING_OFFSET * outer.radius() + 0.5
             {
-                return Err("rings not concentric");
+                return Err(Rejection::RingsNotConcentric);
             }
         }
         let (lo, hi) = layout.radii[0];
         let ratio = inner.radius() / outer.radius();
         if !((lo - 0.05)..=(hi + 0.05)).contains(&ratio) {
-            return Err("ring ratio");
+            return Err(Rejection::RingRatio);
         }
         if !bullseye_on_board(img, &inner, pos) {
-            return Err("no board");
+            return Err(Rejection::NoBoard);
         }
         let score = rings::rings_score(img, &inner, pos, layout.dark_centre);
         if score < MIN_RINGS_SCORE {
-            return Err("rings not uniform");
+            return Err(Rejection::RingsNotUniform);
         }
         let c = concentric_centre(&inner, &outer)
             .filter(|c| geometry::dist(*c, inner.c) < 0.1 * inner.radius() + 0.5)
@@ -465,13 +519,13 @@ impl CircleDetector {
         )
     }
 
-    fn disc(&self, img: &GreyView, start: Ellipse, e: Ellipse) -> Result<Found, &'static str> {
+    fn disc(&self, img: &GreyView, start: Ellipse, e: Ellipse) -> Result<Found, Rejection> {
         // Most candidates are a bullseye's possible centre disc, far too
         // small to be a disc: they end here, before the board's search.
         if !self.sizes.accepts(2.0 * e.radius(), EARLY_SIZE_SLACK) {
-            return Err("size");
+            return Err(Rejection::Size);
         }
-        let pass = rays(img, &e, &[1.0], 1.0).ok_or("no edges")?;
+        let pass = rays(img, &e, &[1.0], 1.0).ok_or(Rejection::NoEdges)?;
         let coverage = self.coverage(&pass, 1)?;
         // Light outside: a dark disc.
         let dark = pass.polarity[0] > 0.0;
@@ -480,9 +534,9 @@ impl CircleDetector {
         } else {
             self.light_discs
         }) {
-            return Err("disc polarity");
+            return Err(Rejection::DiscPolarity);
         }
-        let (e, inliers) = fit_robust(&pass.edges[0]).ok_or("inner fit")?;
+        let (e, inliers) = fit_robust(&pass.edges[0]).ok_or(Rejection::InnerFit)?;
         let rms = rms(&e, &inliers);
         // The ellipse's own centre is biased under perspective; the
         // board's subpixel sides tell where the disc's centre lies.
@@ -496,14 +550,14 @@ impl CircleDetector {
     }
 
     /// The least share of rays that saw each of the first `edges` edges.
-    fn coverage(&self, pass: &RayPass, edges: usize) -> Result<f64, &'static str> {
+    fn coverage(&self, pass: &RayPass, edges: usize) -> Result<f64, Rejection> {
         let n = pass.rays as f64;
         let coverage = pass.edges[..edges]
             .iter()
             .map(|v| v.len() as f64 / n)
             .fold(1.0, f64::min);
         if coverage < MIN_COVERAGE {
-            return Err("coverage");
+            return Err(Rejection::Coverage);
         }
         Ok(coverage)
     }
@@ -519,15 +573,15 @@ impl CircleDetector {
         (e, rms): (&Ellipse, f64),
         coverage: f64,
         pass: &RayPass,
-    ) -> Result<Found, &'static str> {
+    ) -> Result<Found, Rejection> {
         if !self.sizes.accepts(size, SIZE_SLACK) {
-            return Err("size");
+            return Err(Rejection::Size);
         }
         if pass.light_ratio < MIN_LIGHT_RATIO {
-            return Err("not ink");
+            return Err(Rejection::NotInk);
         }
         if rms > MAX_FIT_RMS_PX + 0.01 * e.radius() {
-            return Err("fit rms");
+            return Err(Rejection::FitRms);
         }
         let confidence = (coverage
             * (1.0 / (1.0 + (rms / 0.25).powi(2)))
@@ -548,7 +602,11 @@ impl CircleDetector {
     /// The candidate analysed again with the shadow edge across it (if one
     /// is found) lifted: a shadow's edge across a board or the rings breaks
     /// their uniform levels.
-    fn analyse_lifted(&self, img: &GreyView, start: Ellipse) -> Result<Found, &'static str> {
+    fn analyse_lifted(
+        &self,
+        img: &GreyView,
+        start: Ellipse,
+    ) -> Result<Found, shadow::SecondLook<Rejection>> {
         let r = start.radius();
         // Reach: within three quarters of the size (the disc's diameter or
         // the bullseye's), through the disc or the rings' board.
@@ -638,17 +696,19 @@ impl Detector for CircleDetector {
         let mut found: Vec<Found> = starts
             .iter()
             .filter_map(|e| {
-                let verdict = shadow::with_second_look(self.analyse(&img, *e), &NOT_SHADOW, || {
-                    self.analyse_lifted(&img, *e)
-                });
+                let verdict = shadow::with_second_look(
+                    self.analyse(&img, *e),
+                    Rejection::shadow_may_cause,
+                    || self.analyse_lifted(&img, *e),
+                );
                 verdict
                     .map_err(|(why, lifted)| {
                         tracing::trace!(
                             x = e.c.0 + origin.0 as f64,
                             y = e.c.1 + origin.1 as f64,
                             size = 2.0 * e.radius(),
-                            why,
-                            lifted,
+                            why = ?why,
+                            lifted = ?lifted,
                             "circle candidate rejected"
                         )
                     })

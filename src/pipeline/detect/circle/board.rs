@@ -18,6 +18,7 @@ pub(super) fn board_sides(
     e: &Ellipse,
     polarity: f64,
     board_to_disc: (f64, f64),
+    params: &Params,
 ) -> Result<[Option<[f64; 3]>; 4], Rejection> {
     let n = 64;
     let mut ends: Vec<Pt> = Vec::new();
@@ -34,7 +35,7 @@ pub(super) fn board_sides(
         };
         let board = (b1 + b2 + b3) / 3.0;
         let contrast = board - disc;
-        if contrast * polarity < MIN_CONTRAST
+        if contrast * polarity < params.min_contrast
             || [b1, b2, b3]
                 .iter()
                 .any(|b| (b - board).abs() > 0.3 * contrast.abs())
@@ -52,7 +53,7 @@ pub(super) fn board_sides(
             let Some(v) = at(s) else { break };
             // A fifth of the disc's contrast: a black board on shadowed
             // ground differs from it by far less than from a white disc.
-            if (v - board).abs() > (0.2 * contrast.abs()).max(1.5 * MIN_CONTRAST) {
+            if (v - board).abs() > (0.2 * contrast.abs()).max(1.5 * params.min_contrast) {
                 away += 1;
                 if away == 2 {
                     ends.push((d.0 * (s - 1.0 / len), d.1 * (s - 1.0 / len)));
@@ -71,23 +72,23 @@ pub(super) fn board_sides(
     // The board's noise: second differences of its three samples per ray
     // (a shading gradient cancels), a robust standard deviation.
     let noise = 1.4826 * pr::quantile(&curvature, 0.5) / 6f64.sqrt();
-    let fitted = if (ends.len() as f64) < MIN_END_AGREEMENT * n as f64 {
+    let fitted = if (ends.len() as f64) < params.min_end_agreement * n as f64 {
         Err(Rejection::BoardDoesNotEnd)
     } else {
-        fit_board_square(&ends, n).ok_or(Rejection::BoardNotSquare)
+        fit_board_square(&ends, n, params).ok_or(Rejection::BoardNotSquare)
     };
     // Ground of nearly the board's grey runs rays past the board's end here
     // and there; the sides still show where the board's level stops.
-    let levels = Levels::new(img, e, contrast, noise);
-    let mut square =
-        fitted.or_else(|why| board_by_levels(&levels, board_orientation(&ends)).ok_or(why))?;
+    let levels = Levels::new(img, e, contrast, noise, params);
+    let mut square = fitted
+        .or_else(|why| board_by_levels(&levels, board_orientation(&ends, params)).ok_or(why))?;
     if square.sides.iter().any(Option::is_none) {
         complete_by_levels(&levels, &mut square);
     }
     let ratio = square.half / e.radius();
     // A flat roof around a tank is seldom square: the board's sides
     // must lie as a square's would around this disc.
-    if board_aspect(e, &square).is_some_and(|a| a.max(1.0 / a) > MAX_BOARD_ASPECT) {
+    if board_aspect(e, &square).is_some_and(|a| a.max(1.0 / a) > params.max_board_aspect) {
         return Err(Rejection::BoardNotSquare);
     }
     if !(board_to_disc.0..=board_to_disc.1).contains(&ratio) {
@@ -102,7 +103,7 @@ pub(super) fn board_sides(
         // Subpixel where the profiles allow (ground of enough contrast);
         // pixel-level sides move the centre more than the perspective bias
         // they would remove.
-        *line = board_side(img, e, rough, side, polarity)
+        *line = board_side(img, e, rough, side, polarity, params)
             .map(|(p, d)| cross3([p.0, p.1, 1.0], [p.0 + d.0, p.1 + d.1, 1.0]));
     }
     Ok(lines)
@@ -179,18 +180,18 @@ pub(super) struct BoardSquare {
 /// Fits a square centred on the origin to a board's end points `ends`
 /// (from `n` rays): for every orientation, each point is assigned to the
 /// nearest side and projected on that side's normal, turned by up to
-/// [`MAX_SIDE_TILT_DEG`] the way most of the side's points agree on; a side
+/// [`max_side_tilt_deg`](Params::max_side_tilt_deg) the way most of the side's points agree on; a side
 /// holds when enough of its points agree with their median. The orientation with the
 /// most agreeing points wins among those where: all four sides hold and the
 /// board's diagonals cross at the disc; or sides hold at nearly one
-/// distance with [`MIN_END_AGREEMENT`] of all end points on them. A
+/// distance with [`min_end_agreement`](Params::min_end_agreement) of all end points on them. A
 /// round board (a ring around a disc) fails: the agreeing points of a
 /// square reach sqrt 2 farther at its corners than at its sides' middles, a
 /// circle's do not; and a fifth of them at least lie towards the corners
-/// ([`CORNER_SINE`]), which clutter lying about a ring does not give. So
+/// ([`corner_sine`](Params::corner_sine)), which clutter lying about a ring does not give. So
 /// does a roof with a tank off its centre: its sides lie at different
 /// distances, its diagonals cross away from the tank.
-pub(super) fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
+pub(super) fn fit_board_square(ends: &[Pt], n: usize, params: &Params) -> Option<BoardSquare> {
     let per_side = n as f64 / 4.0;
     let mut best: Option<(usize, BoardSquare)> = None;
     for deg in 0..90 {
@@ -211,7 +212,7 @@ pub(super) fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             let mut side_best: Option<(Pt, f64, usize)> = None;
             let mut h: Vec<f64> = Vec::with_capacity(side.len());
             // Nearest the square first: a tie keeps the smaller tilt.
-            let tilts = (0..=MAX_SIDE_TILT_DEG).flat_map(|t| [t, -t]).skip(1);
+            let tilts = (0..=params.max_side_tilt_deg).flat_map(|t| [t, -t]).skip(1);
             for tilt in tilts {
                 let theta =
                     psi + k as f64 * std::f64::consts::FRAC_PI_2 + (tilt as f64).to_radians();
@@ -222,7 +223,7 @@ pub(super) fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
                 let m = *h.select_nth_unstable_by(mid, f64::total_cmp).1;
                 let agree = h
                     .iter()
-                    .filter(|d| (*d - m).abs() < SQUARE_TOLERANCE * m)
+                    .filter(|d| (*d - m).abs() < params.square_tolerance * m)
                     .count();
                 if side_best.is_none_or(|b| agree > b.2) {
                     side_best = Some((normal, m, agree));
@@ -237,11 +238,11 @@ pub(super) fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
                 .filter_map(|s| {
                     let d = s.0 .0 * normal.0 + s.0 .1 * normal.1;
                     let r = s.0 .0.hypot(s.0 .1);
-                    ((d - m).abs() < SQUARE_TOLERANCE * m)
+                    ((d - m).abs() < params.square_tolerance * m)
                         .then(|| (s.0, (1.0 - (d / r).powi(2)).max(0.0).sqrt()))
                 })
                 .collect();
-            if (on.len() as f64) < MIN_SIDE_SUPPORT * per_side {
+            if (on.len() as f64) < params.min_side_support * per_side {
                 continue;
             }
             // The side's line from points away from the corners, where
@@ -256,9 +257,9 @@ pub(super) fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         // point with the sine of its angle off its side's normal.
         let cornered = |on: &[(Pt, f64)]| {
             let reach: Vec<f64> = on.iter().map(|s| s.0 .0.hypot(s.0 .1)).collect();
-            let near = on.iter().filter(|s| s.1 >= CORNER_SINE).count();
+            let near = on.iter().filter(|s| s.1 >= params.corner_sine).count();
             pr::quantile(&reach, 0.9) / pr::quantile(&reach, 0.1) >= 1.2
-                && near as f64 >= MIN_CORNER_SHARE * on.len() as f64
+                && near as f64 >= params.min_corner_share * on.len() as f64
         };
         let mut consider = |agree: usize, half: f64| {
             if best.as_ref().is_none_or(|b| agree > b.0) {
@@ -272,7 +273,7 @@ pub(super) fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
         if held.len() == 4 {
             let on: Vec<(Pt, f64)> = held.iter().flat_map(|h| h.1.iter().copied()).collect();
             let half = held.iter().map(|h| h.0).sum::<f64>() / 4.0;
-            if centred_on_disc(&lines, half) && cornered(&on) {
+            if centred_on_disc(&lines, half, params) && cornered(&on) {
                 consider(on.len(), half);
             }
         }
@@ -285,17 +286,17 @@ pub(super) fn fit_board_square(ends: &[Pt], n: usize) -> Option<BoardSquare> {
             let same: Vec<f64> = halves[i..]
                 .iter()
                 .copied()
-                .take_while(|h| *h <= MAX_SIDE_RATIO * lo)
+                .take_while(|h| *h <= params.max_side_ratio * lo)
                 .collect();
             let half = same.iter().sum::<f64>() / same.len() as f64;
             let on: Vec<(Pt, f64)> = sides
                 .iter()
                 .flatten()
-                .filter(|s| (s.1 - half).abs() < SQUARE_TOLERANCE * half)
+                .filter(|s| (s.1 - half).abs() < params.square_tolerance * half)
                 .map(|s| (s.0, s.2))
                 .collect();
             let agree = on.len();
-            if agree as f64 >= MIN_END_AGREEMENT * n as f64 && cornered(&on) {
+            if agree as f64 >= params.min_end_agreement * n as f64 && cornered(&on) {
                 consider(agree, half);
             }
         }
@@ -320,7 +321,7 @@ pub(super) fn assign_sides(ends: &[Pt], psi: f64) -> [Vec<(Pt, f64, f64)>; 4] {
 
 /// The square orientation (radians, 0 to pi/2) most of the end points `ends`
 /// agree with: the one where most lie on their side's median distance.
-pub(super) fn board_orientation(ends: &[Pt]) -> f64 {
+pub(super) fn board_orientation(ends: &[Pt], params: &Params) -> f64 {
     let mut best = (0usize, 0.0);
     for deg in 0..90 {
         let psi = (deg as f64).to_radians();
@@ -331,7 +332,7 @@ pub(super) fn board_orientation(ends: &[Pt]) -> f64 {
                 let h: Vec<f64> = side.iter().map(|s| s.1).collect();
                 let m = pr::quantile(&h, 0.5);
                 h.iter()
-                    .filter(|d| (*d - m).abs() < SQUARE_TOLERANCE * m)
+                    .filter(|d| (*d - m).abs() < params.square_tolerance * m)
                     .count()
             })
             .sum();
@@ -358,6 +359,7 @@ pub(super) struct Levels<'a> {
     img: &'a GreyView<'a>,
     e: &'a Ellipse,
     tol: f64,
+    params: &'a Params,
 }
 
 /// One side of a board found by levels: its edge points (relative to the
@@ -377,9 +379,15 @@ impl Levels<'_> {
         e: &'a Ellipse,
         contrast: f64,
         noise: f64,
+        params: &'a Params,
     ) -> Levels<'a> {
         let tol = (4.0 * noise).max(0.1 * contrast).max(8.0);
-        Levels { img, e, tol }
+        Levels {
+            img,
+            e,
+            tol,
+            params,
+        }
     }
 
     fn at(&self, p: Pt) -> Option<f64> {
@@ -426,7 +434,7 @@ impl Levels<'_> {
             }
         }
         let (drop, bin, n, t, columns) = best?;
-        if drop < MIN_LEVEL_DROP {
+        if drop < self.params.min_level_drop {
             return None;
         }
         // The bin, not h - h_lo, which rounding may put just below it.
@@ -447,12 +455,12 @@ impl Levels<'_> {
                     .then_some((n.0 * edge + t.0 * c.u, n.1 * edge + t.1 * c.u))
             })
             .collect();
-        if (points.len() as f64) < MIN_SIDE_SUPPORT * columns.len() as f64 {
+        if (points.len() as f64) < self.params.min_side_support * columns.len() as f64 {
             return None;
         }
         let ((p, d), inliers) = pr::robust_line(&points)?;
         // A ring's arc is not a board's side.
-        if sagitta(&inliers, (p, d)) > MAX_SIDE_BOW_PX {
+        if sagitta(&inliers, (p, d)) > self.params.max_side_bow_px {
             return None;
         }
         let mut normal = (-d.1, d.0);
@@ -526,7 +534,7 @@ impl Levels<'_> {
 /// three corners must reach past the sides. With one side hidden (ground of
 /// the board's grey there), the two sides across it must lie equally far
 /// from the disc and the third as far as they do, within
-/// [`THREE_SIDE_TOLERANCE`], and both corners of the third must reach past.
+/// [`three_side_tolerance`](Params::three_side_tolerance), and both corners of the third must reach past.
 pub(super) fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> {
     let found: [Option<LevelSide>; 4] =
         std::array::from_fn(|k| levels.side(psi + k as f64 * std::f64::consts::FRAC_PI_2));
@@ -544,7 +552,8 @@ pub(super) fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> 
         ),
         [m] => {
             let [a, third, b] = [1, 2, 3].map(|i| distance(m + i).expect("not hidden"));
-            let close = |x: f64, y: f64| x.max(y) / x.min(y) <= 1.0 + THREE_SIDE_TOLERANCE;
+            let close =
+                |x: f64, y: f64| x.max(y) / x.min(y) <= 1.0 + levels.params.three_side_tolerance;
             (
                 (a + third + b) / 3.0,
                 close(a, b) && close(third, (a + b) / 2.0) && corner(m + 1) && corner(m + 2),
@@ -555,7 +564,7 @@ pub(super) fn board_by_levels(levels: &Levels, psi: f64) -> Option<BoardSquare> 
     let sides = found.map(|s| s.map(|s| s.points));
     // Four sides: where the board's diagonals cross (three: the equal
     // distances above).
-    let centred = !hidden.is_empty() || centred_on_disc(&sides, half);
+    let centred = !hidden.is_empty() || centred_on_disc(&sides, half, levels.params);
     (shaped && centred).then_some(BoardSquare { half, psi, sides })
 }
 
@@ -573,16 +582,16 @@ pub(super) fn complete_by_levels(levels: &Levels, square: &mut BoardSquare) {
             *side = Some(found.points);
         }
     }
-    if centred_on_disc(&sides, square.half) {
+    if centred_on_disc(&sides, square.half, levels.params) {
         square.sides = sides;
     }
 }
 
 /// Whether the board bounded by four side lines (its half side `half`) has
-/// its centre at the disc's, within [`MAX_CENTRE_OFFSET`] of the half side
+/// its centre at the disc's, within [`max_centre_offset`](Params::max_centre_offset) of the half side
 /// plus a pixel.
-pub(super) fn centred_on_disc(sides: &[Option<Vec<Pt>>; 4], half: f64) -> bool {
-    board_centre(sides).is_some_and(|c| c.0.hypot(c.1) < MAX_CENTRE_OFFSET * half + 1.0)
+pub(super) fn centred_on_disc(sides: &[Option<Vec<Pt>>; 4], half: f64, params: &Params) -> bool {
+    board_centre(sides).is_some_and(|c| c.0.hypot(c.1) < params.max_centre_offset * half + 1.0)
 }
 
 /// Where the diagonals of the quadrilateral bounded by four side lines
@@ -614,6 +623,7 @@ pub(super) fn board_side(
     rough: (Pt, Pt),
     ends: &[Pt],
     polarity: f64,
+    params: &Params,
 ) -> Option<(Pt, Pt)> {
     let ((px, py), d) = rough;
     // Outward normal: away from the disc's centre (the origin here).
@@ -644,7 +654,7 @@ pub(super) fn board_side(
             // the disc is lighter than its board).
             let rising = ground > board;
             let expected = if polarity > 0.0 { !rising } else { rising };
-            if (ground - board).abs() >= MIN_CONTRAST && expected {
+            if (ground - board).abs() >= params.min_contrast && expected {
                 let centre = half / pr::STEP_PX;
                 if let Some(x) = pr::crossing(&profile, (board + ground) / 2.0, rising, centre) {
                     let s = pr::offset(x, half);
@@ -660,5 +670,5 @@ pub(super) fn board_side(
     // Ground texture crossing the midpoint scatters a faint side's points:
     // no subpixel line there.
     let (line, inliers) = pr::robust_line(&points)?;
-    (pr::line_rms(&inliers, line) <= MAX_SIDE_RMS_PX).then_some(line)
+    (pr::line_rms(&inliers, line) <= params.max_side_rms_px).then_some(line)
 }

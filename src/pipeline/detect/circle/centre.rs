@@ -10,13 +10,19 @@ use super::*;
 /// vanishing points of opposite sides) with respect to the disc's conic;
 /// with one pair of opposite sides, [`centre_between`]; with two adjacent
 /// ones, [`centre_beside`]. All are exact under perspective.
-pub(super) fn perspective_centre(e: &Ellipse, sides: &[Option<[f64; 3]>; 4]) -> Option<Pt> {
+pub(super) fn perspective_centre(
+    e: &Ellipse,
+    sides: &[Option<[f64; 3]>; 4],
+    params: &Params,
+) -> Option<Pt> {
     // Each pair of sides places the centre on its own; a side found on
     // something lying against the board moves every pair it is in. When the
     // pairs disagree, the sides without one of the four if they agree, or
     // else no correction (the ellipse's own centre, biased by up to ~2 px
     // under the mild perspective measured).
-    let tolerance = MAX_PAIR_SPREAD_PX.max(MAX_PAIR_SPREAD * e.radius());
+    let tolerance = params
+        .max_pair_spread_px
+        .max(params.max_pair_spread * e.radius());
     let centres = pair_centres(e, sides);
     // Largest distance between two pairs' centres, leaving out those that
     // use side `skip`.

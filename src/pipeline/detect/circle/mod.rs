@@ -35,10 +35,11 @@ use super::profile as pr;
 use super::refine::{intersect, GreyView};
 use super::shadow;
 use super::{arcs, blobs};
-use super::{DetectError, Detection, Detector, MarkerType, SizeRange, SizeSlack};
+use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
 
 mod board;
 mod centre;
+mod params;
 mod rings;
 #[cfg(test)]
 mod tests;
@@ -48,97 +49,17 @@ use centre::{concentric_centre, perspective_centre};
 use rings::{bullseye_on_board, fit, fit_robust, is_bullseye, match_layout, radial_edges};
 use rings::{rays, rms, RingLayout};
 
-/// Fewest grey levels between a target's dark and light parts.
-const MIN_CONTRAST: f64 = 15.0;
-/// Fraction of rays that must find each edge. Something across a
-/// bullseye's rings (clutter, a shadow edge) hides some of them: 0.75 lost
-/// two bullseyes in partial shadow on seeds 900-903; the ring ratios,
-/// alternating polarity and fit RMS still reject look-alikes.
-const MIN_COVERAGE: f64 = 0.55;
+pub use params::Params;
+
 /// Largest board side over disc diameter searched for a disc target: the
 /// widest a design may give (see `TargetDesign::validate`).
 const MAX_BOARD_TO_DISC: f64 = 3.0;
-/// Least ratio of the light side's grey to the dark side's across the
-/// innermost edge: a print's inks differ in reflectance by 5 to 15 times,
-/// which gamma and haze bring down to 2 and more (as for crosses, see
-/// `printed::Params::min_light_ratio`); blobs of foliage differ by less.
-const MIN_LIGHT_RATIO: f64 = 1.8;
-/// Least correlation of the drawn rings with the image (see
-/// `rings::rings_score`). On the generated target frames of seeds 400,
-/// 401, 900 and 5100 (535 candidates reached it) the 5th percentile is
-/// 0.81; the few under 0.65 (0.596-0.607) were a lattice in one frame's
-/// clutter, and 0.65 lost no target there nor on seed 5200. Cells of
-/// window and panel lattices on the look-alike scenes scored 0.59-0.61.
-const MIN_RINGS_SCORE: f64 = 0.65;
-/// Least share of a ring's edge points its robust ellipse fit keeps.
-const MIN_RING_INLIERS: f64 = 0.8;
-/// Largest difference of a ring's axis ratio from the outer ring's, plus
-/// half a pixel over its radius: concentric circles in one plane project
-/// to nearly the same shape (mild perspective); the edges a lattice shows
-/// around one of its squares differed by 0.21 (0.99 against 0.77, clutter
-/// scene 1400).
-const MAX_ASPECT_GAP: f64 = 0.05;
-/// Largest distance of a ring's ellipse centre from the outer one's, as a
-/// share of the outer radius (plus half a pixel): perspective moves them
-/// apart by a few hundredths.
-const MAX_RING_OFFSET: f64 = 0.08;
-/// Largest RMS distance of edge points from their ellipse.
-const MAX_FIT_RMS_PX: f64 = 0.45;
-/// Unless all four sides hold, the share of all rays whose end must lie on
-/// the square.
-const MIN_END_AGREEMENT: f64 = 0.6;
-/// Share of a side's rays whose end must lie on it for the side to hold.
-const MIN_SIDE_SUPPORT: f64 = 0.6;
-/// An end point lies on its side within this fraction of the side's distance.
-const SQUARE_TOLERANCE: f64 = 0.07;
-/// Held sides' distances from the disc's centre may differ this much (mild
-/// perspective); a roof with a tank off its centre differs by 25% and more.
-const MAX_SIDE_RATIO: f64 = 1.15;
-/// A board's width across one pair of sides over the other's, each over
-/// the disc's width the same way, is within this factor of 1 (it is 1 for
-/// a square and its disc in one plane). Measured on the candidates of the
-/// eleven circle sets: 0.964-1.036 (1st-99th percentile); two roofs with a
-/// tank that passed as targets: 1.31 and 1.45.
-const MAX_BOARD_ASPECT: f64 = 1.15;
-/// A board's side found by levels lies on a line: its points bow from one
-/// by no more than this (pixels). Arcs of a dark ring around a disc, taken
-/// for three sides of a board, bowed 2.2 and 4.6 px.
-const MAX_SIDE_BOW_PX: f64 = 4.0;
-/// A board seen on all four sides is centred on its disc within this
-/// fraction of its half side (plus a pixel): pixel-level side lines place
-/// its centre to ~1 px; a tank off a flat roof's centre is off by 15%+.
-const MAX_CENTRE_OFFSET: f64 = 0.06;
-/// The centres placed by each pair of a board's sides agree within this
-/// fraction of the disc's radius (at least the pixels below). Measured on
-/// true discs: pairs of adjacent sides scatter up to 0.03 of the radius
-/// (0.9 px on a 53 px radius); a side found on clutter moved them by 0.1 of
-/// it and more (2.5 px on 26 px, 6 px on 42 px).
-const MAX_PAIR_SPREAD: f64 = 0.05;
-const MAX_PAIR_SPREAD_PX: f64 = 0.5;
-/// Largest turn of a board's side off the square's normal (degrees): mild
-/// perspective turns opposite sides by a few degrees each.
-const MAX_SIDE_TILT_DEG: i32 = 6;
 /// Turn of a side tried either way when its board is found by levels.
 const LEVEL_TILT_DEG: f64 = 3.0;
-/// Least drop in the share of columns at the board's level where a side
-/// found by levels ends.
-const MIN_LEVEL_DROP: f64 = 0.4;
-/// A board found by levels on three sides: how far (as a fraction) the two
-/// opposite sides' distances from the disc, and the third's from theirs,
-/// may differ.
-const THREE_SIDE_TOLERANCE: f64 = 0.05;
 /// Most Newton steps for the centre from two adjacent board sides (it moves
 /// less than 1e-6 px after 4 on the test frames and the unit test, 5 for a
 /// board off the disc).
 const ADJACENT_ITERATIONS: usize = 20;
-/// A bullseye's board past its outer ring: at least this share of the way
-/// from the black ring's level to the white ring's, on at least
-/// [`MIN_BOARD_SHARE`] of the rays that see the rings.
-const BOARD_LEVEL: f64 = 0.6;
-const MIN_BOARD_SHARE: f64 = 0.5;
-/// Largest RMS distance of a board side's subpixel edge points from their
-/// line (a clean side: 0.3-0.6 px).
-const MAX_SIDE_RMS_PX: f64 = 0.8;
 /// Radius, in candidate radii, searched for a shadow edge across a failed
 /// candidate: a disc's board (corners at 2.8) and a 1:2:3 bullseye's rings
 /// (3). Searching farther for bullseyes with smaller centre discs (5
@@ -149,35 +70,6 @@ const SHADOW_SEARCH: f64 = 3.5;
 /// larger), of the copy with a shadow lifted: the rays walk to where a
 /// board ends, up to 4.5 radii out.
 const SHADOW_COPY: f64 = 4.8;
-/// The slack on a measured size (the outer edge's ellipse): measured over
-/// true size on the hits of the ten circle sets (`printed_misses circle
-/// SEED 4` with `RMS=1`, 2026-12-04) ran 0.941-1.045. Below, 1.10 (a 40 px
-/// target measured down to 36.4 px) is half as wide again as the worst.
-const SIZE_SLACK: SizeSlack = SizeSlack {
-    below: 1.10,
-    above: 1.15,
-};
-/// The slack on a size known before the subpixel fits (the refined
-/// candidate's radius, the rings' measured radii): wider than
-/// [`SIZE_SLACK`], which the final size must meet.
-const EARLY_SIZE_SLACK: SizeSlack = SizeSlack {
-    below: 1.25,
-    above: 1.3,
-};
-/// A contour is an ellipse when its area is this close to its fit's.
-const ROUNDNESS: (f64, f64) = (0.85, 1.15);
-/// Towards a board's corners: end points more than 30 degrees off their
-/// side's normal (sine 0.5). A square's sides hold a third of their points
-/// there (rays at even angles, sides reaching 45 degrees); a round board's
-/// ring keeps within [`SQUARE_TOLERANCE`] of one distance only to about 22
-/// degrees, so only clutter beyond it puts points there.
-const CORNER_SINE: f64 = 0.5;
-/// Share of the end points on a board's sides that must lie towards its
-/// corners: 0.25 at least on the boards fitted in seeds 400-401; 0.13 and
-/// 0.16 on two clutter rings (a black ring around a white disc) whose rays
-/// ended on other clutter here and there, enough to pass the reach test
-/// alone.
-const MIN_CORNER_SHARE: f64 = 0.2;
 
 /// Why a candidate is not a target of the circular designs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -327,6 +219,7 @@ pub struct CircleDetector {
     light_discs: bool,
     board: (f64, f64),
     mask: Mat,
+    params: Params,
 }
 
 /// What one pass of rays found.
@@ -370,7 +263,13 @@ impl CircleDetector {
             light_discs: discs.iter().any(|d| d.polarity == Polarity::LightOnDark),
             board,
             mask: Mat::default(),
+            params: Params::default(),
         }
+    }
+
+    /// The same detector with other thresholds.
+    pub fn with_params(self, params: Params) -> Self {
+        CircleDetector { params, ..self }
     }
 
     /// Smallest radius, over the least size searched, of a candidate: a
@@ -389,8 +288,8 @@ impl CircleDetector {
     /// whether it may be a disc.
     fn possible(&self, r: (f64, f64)) -> (Vec<&RingLayout>, bool) {
         let fits = |lo: f64, hi: f64| {
-            hi >= self.sizes.min_px / EARLY_SIZE_SLACK.below
-                && lo <= self.sizes.max_px * EARLY_SIZE_SLACK.above
+            hi >= self.sizes.min_px / self.params.early_size_slack.below
+                && lo <= self.sizes.max_px * self.params.early_size_slack.above
         };
         let rings = self
             .rings
@@ -412,7 +311,7 @@ impl CircleDetector {
         // small centre disc's edge by a pixel or two.
         let mut e = start;
         for _ in 0..2 {
-            let pass = rays(img, &e, &[1.0], 1.0).ok_or(Rejection::NoEdges)?;
+            let pass = rays(img, &e, &[1.0], 1.0, &self.params).ok_or(Rejection::NoEdges)?;
             let refined = fit(&pass.edges[0]).ok_or(Rejection::InnerFit)?;
             let moved = geometry::dist(refined.c, e.c) + (refined.radius() - e.radius()).abs();
             e = refined;
@@ -428,11 +327,11 @@ impl CircleDetector {
         let measured = if rings.is_empty() {
             Vec::new()
         } else {
-            radial_edges(img, &e, 1.2 * reach.max(1.0))
+            radial_edges(img, &e, 1.2 * reach.max(1.0), &self.params)
         };
         let matched = rings
             .into_iter()
-            .find_map(|l| match_layout(l, &measured).map(|pos| (l, pos)));
+            .find_map(|l| match_layout(l, &measured, &self.params).map(|pos| (l, pos)));
         let discs = disc;
         match matched {
             // A disc's board and the ground past it can show edges like a
@@ -460,13 +359,14 @@ impl CircleDetector {
         let last = pos.len() - 1;
         if !self
             .sizes
-            .accepts(2.0 * pos[last] * e.radius(), EARLY_SIZE_SLACK)
+            .accepts(2.0 * pos[last] * e.radius(), self.params.early_size_slack)
         {
             return Err(Rejection::Size);
         }
         let gap = pos[last] - if last == 0 { 0.0 } else { pos[last - 1] };
-        let pass = rays(img, &e, pos, gap.min(0.55 * pos[last])).ok_or(Rejection::NoEdges)?;
-        if !is_bullseye(&pass, layout) {
+        let pass = rays(img, &e, pos, gap.min(0.55 * pos[last]), &self.params)
+            .ok_or(Rejection::NoEdges)?;
+        if !is_bullseye(&pass, layout, &self.params) {
             return Err(Rejection::RingsNotSeen);
         }
         let coverage = self.coverage(&pass, pass.edges.len())?;
@@ -480,16 +380,18 @@ impl CircleDetector {
         // of squares or a paving shows around one of its cells are not.
         for points in &pass.edges[1..] {
             let (ring, inliers) = fit_robust(points).ok_or(Rejection::RingFit)?;
-            if (inliers.len() as f64) < MIN_RING_INLIERS * points.len() as f64
-                || rings::rms(&ring, &inliers) > MAX_FIT_RMS_PX + 0.01 * ring.radius()
+            if (inliers.len() as f64) < self.params.min_ring_inliers * points.len() as f64
+                || rings::rms(&ring, &inliers) > self.params.max_fit_rms_px + 0.01 * ring.radius()
             {
                 return Err(Rejection::RingFit);
             }
         }
         for ring in [&inner, &outer] {
             let aspect = |e: &Ellipse| e.a.min(e.b) / e.a.max(e.b);
-            if (aspect(ring) - aspect(&outer)).abs() > MAX_ASPECT_GAP + 0.5 / ring.radius()
-                || geometry::dist(ring.c, outer.c) > MAX_RING_OFFSET * outer.radius() + 0.5
+            if (aspect(ring) - aspect(&outer)).abs()
+                > self.params.max_aspect_gap + 0.5 / ring.radius()
+                || geometry::dist(ring.c, outer.c)
+                    > self.params.max_ring_offset * outer.radius() + 0.5
             {
                 return Err(Rejection::RingsNotConcentric);
             }
@@ -499,11 +401,11 @@ impl CircleDetector {
         if !((lo - 0.05)..=(hi + 0.05)).contains(&ratio) {
             return Err(Rejection::RingRatio);
         }
-        if !bullseye_on_board(img, &inner, pos) {
+        if !bullseye_on_board(img, &inner, pos, &self.params) {
             return Err(Rejection::NoBoard);
         }
         let score = rings::rings_score(img, &inner, pos, layout.dark_centre);
-        if score < MIN_RINGS_SCORE {
+        if score < self.params.min_rings_score {
             return Err(Rejection::RingsNotUniform);
         }
         let c = concentric_centre(&inner, &outer)
@@ -522,10 +424,13 @@ impl CircleDetector {
     fn disc(&self, img: &GreyView, start: Ellipse, e: Ellipse) -> Result<Found, Rejection> {
         // Most candidates are a bullseye's possible centre disc, far too
         // small to be a disc: they end here, before the board's search.
-        if !self.sizes.accepts(2.0 * e.radius(), EARLY_SIZE_SLACK) {
+        if !self
+            .sizes
+            .accepts(2.0 * e.radius(), self.params.early_size_slack)
+        {
             return Err(Rejection::Size);
         }
-        let pass = rays(img, &e, &[1.0], 1.0).ok_or(Rejection::NoEdges)?;
+        let pass = rays(img, &e, &[1.0], 1.0, &self.params).ok_or(Rejection::NoEdges)?;
         let coverage = self.coverage(&pass, 1)?;
         // Light outside: a dark disc.
         let dark = pass.polarity[0] > 0.0;
@@ -542,8 +447,8 @@ impl CircleDetector {
         // board's subpixel sides tell where the disc's centre lies.
         // Without a pair of opposite ones (sides faint against the
         // ground, or hidden), the ellipse's centre.
-        let sides = board_sides(img, &e, pass.polarity[0], self.board)?;
-        let c = perspective_centre(&e, &sides)
+        let sides = board_sides(img, &e, pass.polarity[0], self.board, &self.params)?;
+        let c = perspective_centre(&e, &sides, &self.params)
             .filter(|c| geometry::dist(*c, e.c) < 0.1 * e.radius() + 0.5)
             .unwrap_or(e.c);
         self.found(start, c, 2.0 * e.radius(), (&e, rms), coverage, &pass)
@@ -556,7 +461,7 @@ impl CircleDetector {
             .iter()
             .map(|v| v.len() as f64 / n)
             .fold(1.0, f64::min);
-        if coverage < MIN_COVERAGE {
+        if coverage < self.params.min_coverage {
             return Err(Rejection::Coverage);
         }
         Ok(coverage)
@@ -574,13 +479,13 @@ impl CircleDetector {
         coverage: f64,
         pass: &RayPass,
     ) -> Result<Found, Rejection> {
-        if !self.sizes.accepts(size, SIZE_SLACK) {
+        if !self.sizes.accepts(size, self.params.size_slack) {
             return Err(Rejection::Size);
         }
-        if pass.light_ratio < MIN_LIGHT_RATIO {
+        if pass.light_ratio < self.params.min_light_ratio {
             return Err(Rejection::NotInk);
         }
-        if rms > MAX_FIT_RMS_PX + 0.01 * e.radius() {
+        if rms > self.params.max_fit_rms_px + 0.01 * e.radius() {
             return Err(Rejection::FitRms);
         }
         let confidence = (coverage
@@ -657,7 +562,9 @@ impl Detector for CircleDetector {
             }
             let e = Ellipse::from_rect(imgproc::fit_ellipse(&blob.points).map_err(err)?);
             let fill = blob.area / (std::f64::consts::PI * e.a * e.b);
-            if e.a.min(e.b) / e.a.max(e.b) >= 0.6 && (ROUNDNESS.0..=ROUNDNESS.1).contains(&fill) {
+            if e.a.min(e.b) / e.a.max(e.b) >= 0.6
+                && (self.params.roundness.0..=self.params.roundness.1).contains(&fill)
+            {
                 starts.push(e);
             } else {
                 let points: Vec<Pt> = blob

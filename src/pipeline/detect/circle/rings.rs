@@ -39,9 +39,6 @@ impl RingLayout {
     }
 }
 
-/// Ratios measured off a design's ranges by this much still match: the
-/// measured edges are the blurred midpoints, within half a pixel.
-const RATIO_TOLERANCE: f64 = 0.03;
 /// Past a bullseye's outer edge, no other edge within this multiple of
 /// its radius (the board's margin; designs have 1.1 and more).
 const BOARD_MARGIN: f64 = 1.1;
@@ -50,7 +47,12 @@ const BOARD_MARGIN: f64 = 1.1;
 /// multiples of `e`'s radii): positions and signed contrasts (+: lighter
 /// outside). The median over rays ignores what crosses a few of them (a
 /// shadow's edge over less than half of the rings, clutter).
-pub(super) fn radial_edges(img: &GreyView, e: &Ellipse, s_max: f64) -> Vec<(f64, f64)> {
+pub(super) fn radial_edges(
+    img: &GreyView,
+    e: &Ellipse,
+    s_max: f64,
+    params: &Params,
+) -> Vec<(f64, f64)> {
     let rays = 64;
     let ds = 0.5 / e.radius().max(1.0);
     let len = (s_max / ds) as usize + 1;
@@ -74,14 +76,14 @@ pub(super) fn radial_edges(img: &GreyView, e: &Ellipse, s_max: f64) -> Vec<(f64,
             *c.select_nth_unstable_by(mid, f64::total_cmp).1
         })
         .collect();
-    profile_edges(&m, ds)
+    profile_edges(&m, ds, params)
 }
 
 /// Edges of a profile sampled every `ds`: extremes of its slope over a
 /// pixel either side, neighbours of one sign merged, and then, weakest
 /// first, edges whose levels either side differ by less than the least
 /// contrast dropped.
-fn profile_edges(m: &[f64], ds: f64) -> Vec<(f64, f64)> {
+fn profile_edges(m: &[f64], ds: f64, params: &Params) -> Vec<(f64, f64)> {
     let w = 2;
     if m.len() < 2 * w + 3 {
         return Vec::new();
@@ -98,7 +100,7 @@ fn profile_edges(m: &[f64], ds: f64) -> Vec<(f64, f64)> {
     // (index, slope) of each local extreme of the slope's size.
     let mut edges: Vec<(usize, f64)> = Vec::new();
     for j in 1..g.len() - 1 {
-        if g[j].abs() >= 0.25 * MIN_CONTRAST
+        if g[j].abs() >= 0.25 * params.min_contrast
             && g[j].abs() >= g[j - 1].abs()
             && g[j].abs() > g[j + 1].abs()
         {
@@ -128,7 +130,7 @@ fn profile_edges(m: &[f64], ds: f64) -> Vec<(f64, f64)> {
             .iter()
             .enumerate()
             .filter(|(k, step)| {
-                step.abs() < 0.7 * MIN_CONTRAST || step.signum() != edges[*k].1.signum()
+                step.abs() < 0.7 * params.min_contrast || step.signum() != edges[*k].1.signum()
             })
             .min_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
             .map(|(k, _)| k);
@@ -160,7 +162,11 @@ fn profile_edges(m: &[f64], ds: f64) -> Vec<(f64, f64)> {
 /// `edges` show it: the first at the candidate's own edge (s = 1), then
 /// one per ring radius with alternating polarity and the radii's ratios
 /// within the design's ranges, then no edge within the board's margin.
-pub(super) fn match_layout(layout: &RingLayout, edges: &[(f64, f64)]) -> Option<Vec<f64>> {
+pub(super) fn match_layout(
+    layout: &RingLayout,
+    edges: &[(f64, f64)],
+    params: &Params,
+) -> Option<Vec<f64>> {
     let first = edges.iter().position(|&(s, _)| (0.8..=1.25).contains(&s))?;
     let e = &edges[first..];
     let n = layout.radii.len();
@@ -171,7 +177,8 @@ pub(super) fn match_layout(layout: &RingLayout, edges: &[(f64, f64)]) -> Option<
     for (k, &(s, step)) in e[..n].iter().enumerate() {
         let (lo, hi) = layout.radii[k];
         if step.signum() != layout.sign(k)
-            || !((lo - RATIO_TOLERANCE)..=(hi + RATIO_TOLERANCE)).contains(&(s / outer))
+            || !((lo - params.ratio_tolerance)..=(hi + params.ratio_tolerance))
+                .contains(&(s / outer))
         {
             return None;
         }
@@ -183,15 +190,16 @@ pub(super) fn match_layout(layout: &RingLayout, edges: &[(f64, f64)]) -> Option<
 }
 
 /// Bullseye: every edge seen on most rays, each with its design's polarity.
-pub(super) fn is_bullseye(p: &RayPass, layout: &RingLayout) -> bool {
-    let n = p.rays as f64;
-    p.edges.iter().enumerate().all(|(k, v)| {
-        v.len() as f64 >= MIN_COVERAGE * n && p.polarity[k] * layout.sign(k) > 0.8 * v.len() as f64
+pub(super) fn is_bullseye(pass: &RayPass, layout: &RingLayout, params: &Params) -> bool {
+    let n = pass.rays as f64;
+    pass.edges.iter().enumerate().all(|(k, v)| {
+        v.len() as f64 >= params.min_coverage * n
+            && pass.polarity[k] * layout.sign(k) > 0.8 * v.len() as f64
     })
 }
 
 /// Whether a bullseye's outer ring lies on a board: along most rays the
-/// level just past it comes back at least [`BOARD_LEVEL`] of the way from
+/// level just past it comes back at least [`board_level`](Params::board_level) of the way from
 /// the outer ring's level to the level of the ring inside it (a shadow
 /// scales all alike). Rings that happen to be concentric on bare ground
 /// are not a printed target (held-out clutter scene 2302: black disc,
@@ -199,7 +207,7 @@ pub(super) fn is_bullseye(p: &RayPass, layout: &RingLayout) -> bool {
 /// where the clutter generator paints no bullseye: two of its circles
 /// lying one on the other). `e` is the centre disc's edge (s = 1), `pos`
 /// the edges' positions.
-pub(super) fn bullseye_on_board(img: &GreyView, e: &Ellipse, pos: &[f64]) -> bool {
+pub(super) fn bullseye_on_board(img: &GreyView, e: &Ellipse, pos: &[f64], params: &Params) -> bool {
     let n = 64;
     let k = pos.len();
     let start = |i: usize| if i == 0 { 0.0 } else { pos[i - 1] };
@@ -226,15 +234,15 @@ pub(super) fn bullseye_on_board(img: &GreyView, e: &Ellipse, pos: &[f64]) -> boo
         else {
             continue;
         };
-        if (inside - outer).abs() < 0.7 * MIN_CONTRAST {
+        if (inside - outer).abs() < 0.7 * params.min_contrast {
             continue;
         }
         seen += 1;
-        if (past - outer) / (inside - outer) >= BOARD_LEVEL {
+        if (past - outer) / (inside - outer) >= params.board_level {
             board += 1;
         }
     }
-    seen >= n / 2 && board as f64 >= MIN_BOARD_SHARE * seen as f64
+    seen >= n / 2 && board as f64 >= params.min_board_share * seen as f64
 }
 
 /// How well the rings drawn at `pos` (edges in multiples of `e`'s radii,
@@ -289,7 +297,13 @@ fn correlation(x: &[f64], y: &[f64]) -> f64 {
 /// Samples rays through the ellipse frame and finds each edge's midpoint
 /// crossing near its position in `pos` (multiples of the ellipse's radii);
 /// `beyond` is how far past the last edge its outer level may be read.
-pub(super) fn rays(img: &GreyView, e: &Ellipse, pos: &[f64], beyond: f64) -> Option<RayPass> {
+pub(super) fn rays(
+    img: &GreyView,
+    e: &Ellipse,
+    pos: &[f64],
+    beyond: f64,
+    params: &Params,
+) -> Option<RayPass> {
     let edges = pos.len();
     let n = ((std::f64::consts::TAU * e.a.max(e.b)).round() as usize).clamp(32, 360);
     let mut out = RayPass {
@@ -339,7 +353,7 @@ pub(super) fn rays(img: &GreyView, e: &Ellipse, pos: &[f64], beyond: f64) -> Opt
             }
             let inside = pr::mean(&profile, idx(edge - 0.45 * g_in), idx(edge - 0.2 * g_in));
             let outside = pr::mean(&profile, idx(edge + 0.2 * g_out), idx(edge + 0.45 * g_out));
-            if (outside - inside).abs() < 0.7 * MIN_CONTRAST {
+            if (outside - inside).abs() < 0.7 * params.min_contrast {
                 continue;
             }
             let rising = outside > inside;

@@ -79,8 +79,16 @@ fn two_opposite_board_sides_recover_the_projected_centre() {
     let c = centre_between(&disc, &off, &right).expect("centre");
     assert!(geometry::dist(c, truth) > 0.5, "{c:?} vs {truth:?}");
     // All four sides and any one opposite pair agree.
-    let all = perspective_centre(&disc, &[Some(left), Some(top), Some(right), Some(bottom)]);
-    let pair = perspective_centre(&disc, &[None, Some(top), None, Some(bottom)]);
+    let all = perspective_centre(
+        &disc,
+        &[Some(left), Some(top), Some(right), Some(bottom)],
+        &Params::default(),
+    );
+    let pair = perspective_centre(
+        &disc,
+        &[None, Some(top), None, Some(bottom)],
+        &Params::default(),
+    );
     for c in [all, pair] {
         assert!(geometry::dist(c.expect("centre"), truth) < 0.02);
     }
@@ -94,7 +102,7 @@ fn two_adjacent_board_sides_recover_the_projected_centre() {
         let mut seen = [None; 4];
         seen[k] = sides[k];
         seen[(k + 1) % 4] = sides[(k + 1) % 4];
-        let c = perspective_centre(&disc, &seen).expect("centre");
+        let c = perspective_centre(&disc, &seen, &Params::default()).expect("centre");
         assert!(
             geometry::dist(c, truth) < 0.02,
             "sides {k}, {}: {c:?} vs {truth:?}",
@@ -104,9 +112,9 @@ fn two_adjacent_board_sides_recover_the_projected_centre() {
     // A board off the disc's centre (its sides at 0.2 and 0.1 from the
     // disc's edge) gives no centre near the disc's; one side alone none.
     let off = Some(side_line(&h, &disc, (0.2, 0.0), (0.2, 1.0)));
-    let c = perspective_centre(&disc, &[off, sides[1], None, None]);
+    let c = perspective_centre(&disc, &[off, sides[1], None, None], &Params::default());
     assert!(c.is_none_or(|c| geometry::dist(c, truth) > 0.5), "{c:?}");
-    assert!(perspective_centre(&disc, &[sides[0], None, None, None]).is_none());
+    assert!(perspective_centre(&disc, &[sides[0], None, None, None], &Params::default()).is_none());
 }
 
 #[test]
@@ -120,12 +128,15 @@ fn a_side_found_on_clutter_is_left_out_or_no_correction_is_made() {
     let moved = centre_from_sides(&disc, &clutter).expect("centre");
     assert!(geometry::dist(moved, truth) > 2.5, "{moved:?} vs {truth:?}");
     // The other three agree: the centre from them.
-    let c = perspective_centre(&disc, &clutter).expect("centre");
+    let c = perspective_centre(&disc, &clutter, &Params::default()).expect("centre");
     assert!(geometry::dist(c, truth) < 0.02, "{c:?} vs {truth:?}");
     // With three sides seen, one of them wrong, nothing tells which: no
     // correction (the ellipse's own centre is used).
     clutter[3] = None;
-    assert_eq!(perspective_centre(&disc, &clutter), None);
+    assert_eq!(
+        perspective_centre(&disc, &clutter, &Params::default()),
+        None
+    );
 }
 
 /// A white disc (radius 20) on a black board (half side 40, turned 20
@@ -183,7 +194,7 @@ fn a_board_on_ground_of_its_grey_is_found_by_its_level() {
             b: 20.0,
             u: (1.0, 0.0),
         };
-        board_by_levels(&Levels::new(&img, &e, 130.0, 1.0), 0.35)
+        board_by_levels(&Levels::new(&img, &e, 130.0, 1.0, &Params::default()), 0.35)
     };
     let square = find((0.0, 0.0), false).expect("board found by levels");
     assert!(
@@ -396,6 +407,11 @@ fn rings_image(edges: &[f64], dark_centre: bool) -> (Vec<u8>, usize, Pt) {
 
 /// The detector of `designs` (preset names or JSON) on one tile.
 fn detect_designs(data: &[u8], w: usize, designs: &[&str]) -> Vec<Detection> {
+    detect_with(data, w, designs, Params::default())
+}
+
+/// The same with other thresholds.
+fn detect_with(data: &[u8], w: usize, designs: &[&str], params: Params) -> Vec<Detection> {
     let tile = Mat::from_slice(data)
         .and_then(|m| m.reshape(1, w as i32)?.try_clone())
         .expect("tile");
@@ -409,8 +425,28 @@ fn detect_designs(data: &[u8], w: usize, designs: &[&str]) -> Vec<Detection> {
         reach_px: 200.0,
     };
     CircleDetector::new(sizes, &designs)
+        .with_params(params)
         .detect(&tile, (0, 0), [false; 4])
         .expect("detect")
+}
+
+#[test]
+fn thresholds_are_settable() {
+    // Inks of 220 and 30 grey levels: 7.3 times as bright. Asking for 8
+    // rejects the print as not ink; asking for a ring fit the rendered
+    // edges cannot meet rejects it too.
+    let (data, w, _) = rings_image(&[1.0 / 3.0, 2.0 / 3.0, 1.0], true);
+    assert_eq!(detect_designs(&data, w, &["bullseye"]).len(), 1);
+    let ink = Params {
+        min_light_ratio: 8.0,
+        ..Params::default()
+    };
+    assert_eq!(detect_with(&data, w, &["bullseye"], ink), vec![]);
+    let exact = Params {
+        max_fit_rms_px: -1.0,
+        ..Params::default()
+    };
+    assert_eq!(detect_with(&data, w, &["bullseye"], exact), vec![]);
 }
 
 #[test]

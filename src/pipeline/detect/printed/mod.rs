@@ -204,6 +204,11 @@ impl PrintedDetector {
         }
     }
 
+    /// The same detector with other thresholds.
+    pub fn with_params(self, params: Params) -> Self {
+        PrintedDetector { params, ..self }
+    }
+
     /// The designs a candidate of this symmetry may be.
     fn designs_for(&self, s: Symmetry) -> impl Iterator<Item = &TargetDesign> {
         self.designs.iter().filter(move |d| {

@@ -8,10 +8,15 @@ use opencv::prelude::*;
 use super::super::design::TargetDesign;
 use super::super::test_image::render_image;
 use super::super::{Detection, Detector, MarkerType, SizeRange};
-use super::PrintedDetector;
+use super::{Params, PrintedDetector};
 
 /// The detector with `designs` run on a w x w image as one tile.
 fn detect_in(data: &[u8], w: usize, designs: &[&str]) -> Vec<Detection> {
+    detect_with(data, w, designs, Params::default())
+}
+
+/// The same with other thresholds.
+fn detect_with(data: &[u8], w: usize, designs: &[&str], params: Params) -> Vec<Detection> {
     let tile = Mat::from_slice(data)
         .and_then(|m| m.reshape(1, w as i32)?.try_clone())
         .expect("tile");
@@ -25,6 +30,7 @@ fn detect_in(data: &[u8], w: usize, designs: &[&str]) -> Vec<Detection> {
         reach_px: 200.0,
     };
     PrintedDetector::new(MarkerType::Crosshair, designs, sizes)
+        .with_params(params)
         .detect(&tile, (0, 0), [false; 4])
         .expect("detect")
 }
@@ -92,6 +98,25 @@ fn markings_touching_the_bars_neither_stop_nor_break_a_cross() {
             assert!(d.confidence > 0.9, "confidence {}", d.confidence);
         }
     }
+}
+
+#[test]
+fn thresholds_are_settable() {
+    // The plain cross's inks differ by 9 times (235 against 25): found by
+    // default, not when inks must differ by 10 times, nor when the drawn
+    // design must match better than perfectly.
+    let (data, _) = marked_cross(0.3, &[]);
+    assert_eq!(detect_in(&data, 240, &["cross"]).len(), 1);
+    let ink = Params {
+        min_light_ratio: 10.0,
+        ..Params::default()
+    };
+    assert_eq!(detect_with(&data, 240, &["cross"], ink), vec![]);
+    let perfect = Params {
+        min_score: 1.01,
+        ..Params::default()
+    };
+    assert_eq!(detect_with(&data, 240, &["cross"], perfect), vec![]);
 }
 
 #[test]

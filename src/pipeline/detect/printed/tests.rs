@@ -266,3 +266,41 @@ fn a_stripe_is_not_a_checker() {
         assert!(found.is_empty(), "crossing {crossing}: {found:?}");
     }
 }
+
+#[test]
+fn a_bars_width_on_the_ring_holds_for_wide_bars_and_under_a_shadow() {
+    // A cross's ring samples as the detector takes them (64 directions at
+    // TAU * i / 64), its bars turned by a0, light 200 on a board of 30
+    // with edges a pixel wide; the half plane x > 0 in a shadow that keeps
+    // 45% of the light. Good to a tenth and one sample's spacing (the
+    // old estimate, one cut at the whole ring's middle level, lost the
+    // shadowed bars and gave half the width).
+    let ring = |half_bar: f64, r: f64, a0: f64, shadow: bool| -> Vec<f64> {
+        (0..64)
+            .map(|i| {
+                let t = std::f64::consts::TAU * i as f64 / 64.0;
+                let (x, y) = (r * t.cos(), r * t.sin());
+                let (u, v) = (x * a0.cos() + y * a0.sin(), -x * a0.sin() + y * a0.cos());
+                let inside = (0.5 + half_bar - u.abs().min(v.abs())).clamp(0.0, 1.0);
+                let grey = 30.0 + 170.0 * inside;
+                if shadow && x > 0.0 {
+                    0.45 * grey
+                } else {
+                    grey
+                }
+            })
+            .collect()
+    };
+    for (half_bar, r) in [(9.5, 16.0), (4.0, 16.0), (6.0, 30.0)] {
+        for shadow in [false, true] {
+            for a0 in [0.2, 0.7] {
+                let w = super::bar_width_on_ring(&ring(half_bar, r, a0, shadow), 1.0, r, a0);
+                let truth = 2.0 * half_bar;
+                assert!(
+                    (w - truth).abs() < 0.1 * truth + std::f64::consts::TAU * r / 64.0,
+                    "bar {truth} px, ring {r} px, shadow {shadow}, a0 {a0}: {w}"
+                );
+            }
+        }
+    }
+}

@@ -28,6 +28,10 @@ pub enum StoreError {
     Db(#[from] rusqlite::Error),
     #[error("job store: bad record: {0}")]
     Corrupt(String),
+    /// The data folder was written by a newer build, whose schema steps
+    /// this one does not know.
+    #[error("its schema is version {found}, newer than this build's {supported}: run a newer gcp-tagger on this data folder")]
+    NewerSchema { found: u32, supported: u32 },
     /// Another request with the same Idempotency-Key committed first.
     #[error("job store: idempotency key already used")]
     KeyTaken,
@@ -168,7 +172,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     targets INTEGER
 );
 CREATE INDEX IF NOT EXISTS jobs_flight ON jobs(flight_id);
--- jobs_flight_image (UNIQUE flight_id, image) is created in `Store::open`.
+-- Later steps: see MIGRATIONS.
 CREATE TABLE IF NOT EXISTS idempotency (
     key TEXT PRIMARY KEY,
     request TEXT NOT NULL,
@@ -191,6 +195,62 @@ const ADDED_COLUMNS: [(&str, &str, &str); 8] = [
     ("flights", "export_attempts", "INTEGER NOT NULL DEFAULT 0"),
 ];
 
+/// One step of the schema, run inside its own transaction.
+type Step = fn(&Connection) -> Result<(), StoreError>;
+
+/// The store's schema, step by step: a store records the last step it
+/// took in SQLite's `user_version`, and opening it takes the steps after
+/// that, each in one transaction. Every step is safe on a store that
+/// already has part of it (a data folder from before the steps were
+/// numbered is at version 0 whatever columns it holds). Add a step; never
+/// change one that has shipped.
+const MIGRATIONS: [(&str, Step); 3] = [
+    ("flights, jobs and idempotency keys", |c| {
+        c.execute_batch(SCHEMA)?;
+        Ok(())
+    }),
+    (
+        "S3 sources, warnings and the flight's export",
+        add_missing_columns,
+    ),
+    ("one frame per name in a flight", unique_frame_names),
+];
+
+/// The schema version this build writes: the number of [`MIGRATIONS`].
+pub const SCHEMA_VERSION: u32 = MIGRATIONS.len() as u32;
+
+/// Takes the store at `conn` to [`SCHEMA_VERSION`]; refuses a store written
+/// by a newer build (its steps are unknown here).
+fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
+    let at: u32 = conn.pragma_query_value(None, "user_version", |r| r.get(0))?;
+    if at > SCHEMA_VERSION {
+        return Err(StoreError::NewerSchema {
+            found: at,
+            supported: SCHEMA_VERSION,
+        });
+    }
+    for (version, (what, step)) in (1u32..).zip(MIGRATIONS.iter()).skip(at as usize) {
+        let tx = conn.transaction()?;
+        step(&tx)?;
+        tx.pragma_update(None, "user_version", version)?;
+        tx.commit()?;
+        tracing::info!(version, what, "job store schema migrated");
+    }
+    Ok(())
+}
+
+/// One frame per name in a flight, enforced by the database too. A store
+/// written before this index may hold duplicates: it opens, they stay, and
+/// new ones are still refused by `add_to_flight`.
+fn unique_frame_names(conn: &Connection) -> Result<(), StoreError> {
+    if let Err(e) = conn.execute_batch(
+        "CREATE UNIQUE INDEX IF NOT EXISTS jobs_flight_image ON jobs(flight_id, image)",
+    ) {
+        tracing::warn!(error = %e, "frame names repeat within a flight in this store; new repeats are refused");
+    }
+    Ok(())
+}
+
 fn add_missing_columns(conn: &Connection) -> Result<(), StoreError> {
     for (table, column, kind) in ADDED_COLUMNS {
         let mut stmt = conn.prepare(&format!("PRAGMA table_info({table})"))?;
@@ -208,23 +268,14 @@ impl Store {
     /// Opens (or creates) the store at `path` and loads it. Jobs that were
     /// running when the process stopped go back to the queue.
     pub fn open(path: &Path) -> Result<Store, StoreError> {
-        let conn = Connection::open(path)?;
+        let mut conn = Connection::open(path)?;
         // WAL: readers never block the writer; FULL: a commit is on disk
         // before the client hears "created".
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "FULL")?;
         conn.pragma_update(None, "foreign_keys", "ON")?;
         conn.busy_timeout(Duration::from_secs(5))?;
-        conn.execute_batch(SCHEMA)?;
-        add_missing_columns(&conn)?;
-        // One frame per name in a flight, enforced by the database too. A
-        // store written before this index may hold duplicates: it opens,
-        // they stay, and new ones are still refused by `add_to_flight`.
-        if let Err(e) = conn.execute_batch(
-            "CREATE UNIQUE INDEX IF NOT EXISTS jobs_flight_image ON jobs(flight_id, image)",
-        ) {
-            tracing::warn!(error = %e, "frame names repeat within a flight in this store; new repeats are refused");
-        }
+        migrate(&mut conn)?;
         let requeued = conn.execute(
             "UPDATE jobs SET state = 'queued', started_at = NULL WHERE state = 'running'",
             [],
@@ -1260,5 +1311,38 @@ mod tests {
         let store = Store::open(&path).unwrap();
         assert_eq!(store.stats().queued, 1);
         assert_eq!(store.flight(uuid::Uuid::nil()).unwrap().export, None);
+        drop(store);
+        // Migrated to this build's version, which a second open keeps.
+        let version = |path: &Path| -> u32 {
+            Connection::open(path)
+                .unwrap()
+                .pragma_query_value(None, "user_version", |r| r.get(0))
+                .unwrap()
+        };
+        assert_eq!(version(&path), SCHEMA_VERSION);
+        Store::open(&path).unwrap();
+        assert_eq!(version(&path), SCHEMA_VERSION);
+    }
+
+    #[test]
+    fn a_store_from_a_newer_build_is_refused_and_left_as_it_is() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("jobs.sqlite");
+        drop(Store::open(&path).unwrap());
+        let conn = Connection::open(&path).unwrap();
+        conn.pragma_update(None, "user_version", SCHEMA_VERSION + 1)
+            .unwrap();
+        drop(conn);
+        let err = Store::open(&path).err().expect("refused").to_string();
+        assert!(
+            err.contains(&format!("version {}", SCHEMA_VERSION + 1))
+                && err.contains("newer than this build"),
+            "{err}"
+        );
+        let conn = Connection::open(&path).unwrap();
+        let v: u32 = conn
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .unwrap();
+        assert_eq!(v, SCHEMA_VERSION + 1);
     }
 }

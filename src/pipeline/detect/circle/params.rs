@@ -71,7 +71,8 @@ pub struct Params {
     /// (0.9 px on a 53 px radius); a side found on clutter moved them by 0.1 of
     /// it and more (2.5 px on 26 px, 6 px on 42 px).
     pub max_pair_spread: f64,
-    /// In pixels: the least of the spread above.
+    /// The same agreement in pixels, for small discs: the tolerance is the
+    /// larger of this and `max_pair_spread` of the radius.
     pub max_pair_spread_px: f64,
     /// Largest turn of a board's side off the square's normal (degrees): mild
     /// perspective turns opposite sides by a few degrees each.
@@ -87,6 +88,8 @@ pub struct Params {
     /// from the black ring's level to the white ring's, on at least
     /// [`min_board_share`](Params::min_board_share) of the rays that see the rings.
     pub board_level: f64,
+    /// Share of the rays that see the rings on which the board must reach
+    /// [`board_level`](Params::board_level).
     pub min_board_share: f64,
     /// Largest RMS distance of a board side's subpixel edge points from their
     /// line (a clean side: 0.3-0.6 px).

@@ -285,7 +285,10 @@ impl PrintedDetector {
                 _ => width + 1.5,
             };
             let step = (limit / 60.0).max(0.5);
-            for (i, arm) in arms.iter_mut().enumerate() {
+            // Each line is judged as soon as its two arms are followed: most
+            // candidates (ground texture) fail on the first line.
+            for i in [0, 2, 1, 3] {
+                let arm = &mut arms[i];
                 let d = arm_dir(&dirs, i);
                 let feature = match design.kind {
                     DesignKind::Cross => Feature::Bar { sign },
@@ -318,15 +321,16 @@ impl PrintedDetector {
                 {
                     return Err(Rejection::AtTileEdge);
                 }
-            }
-            // A marking may run beside a whole arm (a free quadrant's
-            // triangle on a bar): each line is judged on both its arms.
-            for l in 0..2 {
-                let (a, b) = (&arms[l], &arms[l + 2]);
-                let points = (a.points.len() + b.points.len()) as f64;
-                let wanted = (p.min_coverage * (a.profiles + b.profiles) as f64).max(6.0);
-                if points < wanted {
-                    return Err(Rejection::ArmUnclear);
+                // A marking may run beside a whole arm (a free quadrant's
+                // triangle on a bar): each line is judged on both its arms.
+                if i >= 2 {
+                    let l = i - 2;
+                    let (a, b) = (&arms[l], &arms[l + 2]);
+                    let points = (a.points.len() + b.points.len()) as f64;
+                    let wanted = (p.min_coverage * (a.profiles + b.profiles) as f64).max(6.0);
+                    if points < wanted {
+                        return Err(Rejection::ArmUnclear);
+                    }
                 }
             }
             // A marking touching a bar along its side widens it there, and

@@ -73,7 +73,7 @@ pub fn follow(
         Feature::Step { .. } => 1.5,
     };
     let mut arm = Arm::default();
-    let mut samples = Vec::new();
+    let (mut samples, mut prefix) = (Vec::new(), Vec::new());
     let mut off = 0usize;
     let mut first_off = 0.0;
     // Consecutive profiles off the board that end the arm: two pixels' worth.
@@ -90,6 +90,7 @@ pub fn follow(
         }
         let across = Across {
             samples: &samples,
+            prefix: running_sums(&samples, &mut prefix),
             half,
             side_from,
             base,
@@ -143,13 +144,14 @@ pub fn continuation(
         Feature::Step { .. } => (width, 1.5),
     };
     let need = params.side_share * contrast;
-    let mut samples = Vec::new();
+    let (mut samples, mut prefix) = (Vec::new(), Vec::new());
     let (mut seen, mut total) = (0usize, 0usize);
     let mut t = from;
     while t <= to {
         pr::line(img, add(centre, dir, t), n, half, &mut samples)?;
         let across = Across {
             samples: &samples,
+            prefix: running_sums(&samples, &mut prefix),
             half,
             side_from,
             base: add(centre, dir, t),
@@ -174,11 +176,26 @@ pub fn continuation(
     (total > 0).then(|| seen as f64 / total as f64)
 }
 
+/// `out[i]` = the sum of `samples[..i]` (one more entry than samples), so
+/// that any band's mean costs two lookups.
+fn running_sums<'a>(samples: &[f64], out: &'a mut Vec<f64>) -> &'a [f64] {
+    out.clear();
+    out.push(0.0);
+    let mut sum = 0.0;
+    for v in samples {
+        sum += v;
+        out.push(sum);
+    }
+    out
+}
+
 /// One profile across the feature: samples every [`pr::STEP_PX`] from
 /// `-half` to `half` along `n`, centred on `base`; the sides are measured
 /// from `side_from` outward.
 struct Across<'a> {
     samples: &'a [f64],
+    /// Running sums of `samples` (see [`running_sums`]).
+    prefix: &'a [f64],
     half: f64,
     side_from: f64,
     base: Pt,
@@ -191,7 +208,8 @@ impl Across<'_> {
     fn band_mean(&self, from: f64, to: f64) -> f64 {
         let last = (self.samples.len() - 1) as f64;
         let idx = |x: f64| ((x + self.half) / pr::STEP_PX).round().clamp(0.0, last) as usize;
-        pr::mean(self.samples, idx(from.min(to)), idx(from.max(to)) + 1)
+        let (a, b) = (idx(from.min(to)), idx(from.max(to)) + 1);
+        (self.prefix[b] - self.prefix[a]) / (b - a) as f64
     }
 
     /// The point at `offset` pixels along the profile.

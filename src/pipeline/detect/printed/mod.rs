@@ -331,6 +331,12 @@ impl PrintedDetector {
                     if points < wanted {
                         return Err(Rejection::ArmUnclear);
                     }
+                    // The second pass follows the arms to their ends:
+                    // opposite arms differ by perspective only.
+                    let (a, b) = (a.length, b.length);
+                    if pass == 1 && a.max(b) > p.max_arm_ratio * a.min(b) {
+                        return Err(Rejection::UnevenArms);
+                    }
                 }
             }
             // A marking touching a bar along its side widens it there, and
@@ -394,12 +400,6 @@ impl PrintedDetector {
             }
         }
         let lengths = [0, 1, 2, 3].map(|i| arms[i].length);
-        for i in 0..2 {
-            let (a, b) = (lengths[i], lengths[i + 2]);
-            if a.max(b) > p.max_arm_ratio * a.min(b) {
-                return Err(Rejection::UnevenArms);
-            }
-        }
         // A printed bar has one width along its length (perspective
         // changes it by a few percent); a chain of paving's squares
         // touching at their corners, taken for a bar, widens and narrows

@@ -284,7 +284,11 @@ impl PrintedDetector {
                 // A checker (the detector holds crosses and checkers only).
                 _ => width + 1.5,
             };
-            let step = (limit / 60.0).max(0.5);
+            let step = if pass == 0 {
+                (limit / 40.0).max(0.75)
+            } else {
+                (limit / 60.0).max(0.5)
+            };
             // Each line is judged as soon as its two arms are followed: most
             // candidates (ground texture) fail on the first line.
             for i in [0, 2, 1, 3] {

@@ -39,21 +39,54 @@ pub fn offset(index: f64, half: f64) -> f64 {
 }
 
 /// Fractional index where `p` crosses `level` upward (`rising`) or downward,
-/// nearest to index `near`.
+/// nearest to index `near` (the lower one of two as near).
+///
+/// Crossings lie in increasing order along the profile (each interval
+/// holds at most one, and two neighbours cannot share their common
+/// sample), so the nearest is one of the first met walking out from
+/// `near`: the search stops there, not at the profile's ends.
 pub fn crossing(p: &[f64], level: f64, rising: bool, near: f64) -> Option<f64> {
-    let mut best: Option<f64> = None;
-    for i in 0..p.len().saturating_sub(1) {
+    let hit = |i: usize| -> Option<f64> {
         let (a, b) = (p[i], p[i + 1]);
-        let hit = if rising {
+        let crosses = if rising {
             a < level && b >= level
         } else {
             a >= level && b < level
         };
-        if hit {
-            let x = i as f64 + (level - a) / (b - a);
+        crosses.then(|| i as f64 + (level - a) / (b - a))
+    };
+    let intervals = p.len().saturating_sub(1);
+    if intervals == 0 {
+        return None;
+    }
+    // The interval holding `near` (clamped to the profile).
+    let first = if near <= 0.0 {
+        0
+    } else {
+        (near as usize).min(intervals - 1)
+    };
+    // The crossing in `near`'s interval (it may lie before `near`), else
+    // or then the first after it; the last before it only where it can be
+    // nearer.
+    let mut best = hit(first);
+    if best.is_none_or(|x| x < near) {
+        if let Some(x) = (first + 1..intervals).find_map(hit) {
             if best.is_none_or(|bx| (x - near).abs() < (bx - near).abs()) {
                 best = Some(x);
             }
+        }
+    }
+    let bound = best.map_or(f64::INFINITY, |x| (x - near).abs());
+    for i in (0..first).rev() {
+        if near - (i + 1) as f64 > bound {
+            break;
+        }
+        if let Some(x) = hit(i) {
+            // Before the others: it wins a tie, as the lower index.
+            if best.is_none_or(|bx| (x - near).abs() <= (bx - near).abs()) {
+                best = Some(x);
+            }
+            break;
         }
     }
     best
@@ -124,4 +157,58 @@ pub fn inliers(points: &[Pt], residuals: &[f64]) -> Vec<Pt> {
         .filter(|(_, r)| **r <= limit)
         .map(|(p, _)| *p)
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::crossing;
+
+    /// The nearest crossing by looking at every interval.
+    fn every_interval(p: &[f64], level: f64, rising: bool, near: f64) -> Option<f64> {
+        let mut best: Option<f64> = None;
+        for i in 0..p.len().saturating_sub(1) {
+            let (a, b) = (p[i], p[i + 1]);
+            let hit = if rising {
+                a < level && b >= level
+            } else {
+                a >= level && b < level
+            };
+            if hit {
+                let x = i as f64 + (level - a) / (b - a);
+                if best.is_none_or(|bx| (x - near).abs() < (bx - near).abs()) {
+                    best = Some(x);
+                }
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn the_nearest_crossing_is_the_one_found_by_looking_everywhere() {
+        // Noisy steps and ramps on coarse grey levels (ties and samples
+        // exactly at the level included), `near` inside, on and past the
+        // ends of the profile.
+        let mut state = 0x2545_f491_u64;
+        let mut next = move |n: u64| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) % n
+        };
+        for _ in 0..20_000 {
+            let len = next(40) as usize;
+            let p: Vec<f64> = (0..len).map(|_| next(6) as f64 * 10.0).collect();
+            let level = next(6) as f64 * 10.0 + [0.0, 5.0][next(2) as usize];
+            let near = next(90) as f64 / 2.0 - 2.0;
+            for rising in [true, false] {
+                assert_eq!(
+                    crossing(&p, level, rising, near),
+                    every_interval(&p, level, rising, near),
+                    "{p:?} level {level} rising {rising} near {near}"
+                );
+            }
+        }
+        assert_eq!(crossing(&[], 1.0, true, 0.0), None);
+        assert_eq!(crossing(&[0.0, 2.0], 1.0, true, f64::NAN), Some(0.5));
+    }
 }

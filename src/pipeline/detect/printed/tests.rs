@@ -38,6 +38,9 @@ fn detect_with(data: &[u8], w: usize, designs: &[&str], params: Params) -> Vec<D
 /// A marking's stroke: a segment between two points of the board's frame.
 type Stroke = ((f64, f64), (f64, f64));
 
+/// Grey of the ground at (u, v) in the board's frame.
+type Ground = dyn Fn(f64, f64) -> f64;
+
 /// Distance of point (x, y) from the segment a-b.
 fn to_segment((x, y): (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
@@ -115,7 +118,7 @@ fn an_arm_ends_where_its_bar_ends_whatever_the_ground_beyond() {
     // the bar's line (the board seems to go on there), or a light path
     // twice the bar's width running on from the end. Neither lengthens
     // that arm: the cross is found, at its centre.
-    let grounds: [(&str, &dyn Fn(f64, f64) -> f64); 3] = [
+    let grounds: [(&str, &Ground); 3] = [
         ("dark beside", &|u, v| {
             if u > 0.0 && v > 0.0 {
                 25.0

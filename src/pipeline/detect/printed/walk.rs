@@ -81,23 +81,11 @@ pub fn follow(
     let need = params.side_share * contrast;
     let mut t = start;
     arm.length = start;
-    // Where the last centre-line point was measured: a bar's end is where
-    // it was last seen at its width with the board on both sides. Ground
-    // as dark as the board beside an arm's end keeps one side "board" on
-    // and on, and a light stripe touching the end is a light band too,
-    // but at another width.
-    let mut last_point: Option<f64> = None;
-    let is_bar = matches!(feature, Feature::Bar { .. });
-    let bar_end = |last: Option<f64>, length: f64| match last {
-        Some(at) if is_bar => length.min(at + 0.5 * step),
-        _ => length,
-    };
     while t <= limit {
         let base = add(centre, dir, t);
         if pr::line(img, base, n, half, &mut samples).is_none() {
             // The tile's edge: the arm cannot be followed to its end.
             arm.left_tile = true;
-            arm.length = bar_end(last_point, arm.length);
             return arm;
         }
         let across = Across {
@@ -108,14 +96,10 @@ pub fn follow(
             base,
             n,
         };
-        let points = arm.points.len();
         let on_board = match feature {
             Feature::Bar { sign } => across.bar(sign, width, need, params, &mut arm),
             Feature::Step { sign } => across.step(sign, need, &mut arm),
         };
-        if arm.points.len() > points {
-            last_point = Some(t);
-        }
         if on_board {
             arm.profiles += 1;
             off = 0;
@@ -126,16 +110,14 @@ pub fn follow(
             }
             off += 1;
             if off >= end_after {
-                arm.length = bar_end(last_point, 0.5 * (arm.length + first_off));
+                arm.length = 0.5 * (arm.length + first_off);
                 return arm;
             }
         }
         t += step;
     }
-    // On the board to the walk's limit; a bar seen last well before it
-    // ended there (one side dark ground from then on).
-    arm.length = bar_end(last_point, limit);
-    arm.unended = arm.length > limit - 2.0 * step - width;
+    arm.unended = true;
+    arm.length = limit;
     arm
 }
 

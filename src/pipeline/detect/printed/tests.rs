@@ -38,6 +38,9 @@ fn detect_with(data: &[u8], w: usize, designs: &[&str], params: Params) -> Vec<D
 /// A marking's stroke: a segment between two points of the board's frame.
 type Stroke = ((f64, f64), (f64, f64));
 
+/// Grey of the ground at (u, v) in the board's frame.
+type Ground = dyn Fn(f64, f64) -> f64;
+
 /// Distance of point (x, y) from the segment a-b.
 fn to_segment((x, y): (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
@@ -49,13 +52,22 @@ fn to_segment((x, y): (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
 /// turned by `angle`, its centre at a non-integer position; `marking` draws
 /// white strokes 5 px wide in the board's frame (u along bar A).
 fn marked_cross(angle: f64, marking: &[Stroke]) -> (Vec<u8>, (f64, f64)) {
+    cross_on(angle, marking, |_, _| 170.0)
+}
+
+/// The same cross on the ground `ground(u, v)` (grey, in the board's frame).
+fn cross_on(
+    angle: f64,
+    marking: &[Stroke],
+    ground: impl Fn(f64, f64) -> f64,
+) -> (Vec<u8>, (f64, f64)) {
     let (w, c, half, half_bar) = (240usize, (120.37, 118.81), 60.0, 7.0);
     let (co, si) = (angle.cos(), angle.sin());
     let data = render_image(w, |x, y| {
         let (dx, dy) = (x - c.0, y - c.1);
         let (u, v) = (co * dx + si * dy, -si * dx + co * dy);
         if u.abs() > half || v.abs() > half {
-            return 170.0;
+            return ground(u, v);
         }
         let on_mark = marking
             .iter()
@@ -96,6 +108,46 @@ fn markings_touching_the_bars_neither_stop_nor_break_a_cross() {
             );
             assert!((d.size_px - 120.0).abs() < 8.0, "size {}", d.size_px);
             assert!(d.confidence > 0.9, "confidence {}", d.confidence);
+        }
+    }
+}
+
+#[test]
+fn an_arm_ends_where_its_bar_ends_whatever_the_ground_beyond() {
+    // Past the end of bar +u: ground as dark as the board on one side of
+    // the bar's line (the board seems to go on there), or a light path
+    // twice the bar's width running on from the end. Neither lengthens
+    // that arm: the cross is found, at its centre.
+    let grounds: [(&str, &Ground); 3] = [
+        ("dark beside", &|u, v| {
+            if u > 0.0 && v > 0.0 {
+                25.0
+            } else {
+                170.0
+            }
+        }),
+        ("dark band", &|u, v| {
+            if u > 0.0 && v.abs() < 40.0 && v > -10.0 {
+                25.0
+            } else {
+                170.0
+            }
+        }),
+        ("light path", &|u, v| {
+            if u > 0.0 && v.abs() < 14.0 {
+                235.0
+            } else {
+                170.0
+            }
+        }),
+    ];
+    for (name, ground) in grounds {
+        for angle in [0.3, 1.1] {
+            let (data, c) = cross_on(angle, &[], ground);
+            let found = detect_in(&data, 240, &["cross"]);
+            assert_eq!(found.len(), 1, "{name}, angle {angle}: {found:?}");
+            let err = (found[0].center.0 - c.0).hypot(found[0].center.1 - c.1);
+            assert!(err < 0.15, "{name}, angle {angle}: centre off by {err}");
         }
     }
 }

@@ -81,11 +81,24 @@ pub fn follow(
     let need = params.side_share * contrast;
     let mut t = start;
     arm.length = start;
+    // Where the last centre-line point was measured. Ground as dark as
+    // the board beside an arm's end keeps one side at board level on and
+    // on, so a walk that never leaves the "board" (to its limit or the
+    // tile's edge) ends its bar there. A walk that did leave it keeps its
+    // own end: cutting those too (a light stripe at the end) let paving in
+    // shadow through as a cross.
+    let mut last_point: Option<f64> = None;
+    let is_bar = matches!(feature, Feature::Bar { .. });
+    let bar_end = |last: Option<f64>, length: f64| match last {
+        Some(at) if is_bar => length.min(at + 0.5 * step),
+        _ => length,
+    };
     while t <= limit {
         let base = add(centre, dir, t);
         if pr::line(img, base, n, half, &mut samples).is_none() {
             // The tile's edge: the arm cannot be followed to its end.
             arm.left_tile = true;
+            arm.length = bar_end(last_point, arm.length);
             return arm;
         }
         let across = Across {
@@ -96,10 +109,14 @@ pub fn follow(
             base,
             n,
         };
+        let points = arm.points.len();
         let on_board = match feature {
             Feature::Bar { sign } => across.bar(sign, width, need, params, &mut arm),
             Feature::Step { sign } => across.step(sign, need, &mut arm),
         };
+        if arm.points.len() > points {
+            last_point = Some(t);
+        }
         if on_board {
             arm.profiles += 1;
             off = 0;
@@ -116,8 +133,10 @@ pub fn follow(
         }
         t += step;
     }
-    arm.unended = true;
-    arm.length = limit;
+    // On the board to the walk's limit; a bar seen last well before it
+    // ended there (one side dark ground from then on).
+    arm.length = bar_end(last_point, limit);
+    arm.unended = arm.length > limit - 2.0 * step - width;
     arm
 }
 

@@ -65,9 +65,9 @@ pub fn crossing(p: &[f64], level: f64, rising: bool, near: f64) -> Option<f64> {
     } else {
         (near as usize).min(intervals - 1)
     };
-    // The crossing in `near`'s interval (it may lie before `near`), else
-    // or then the first after it; the last before it only where it can be
-    // nearer.
+    // The crossing in `near`'s interval and, unless that one lies at or
+    // past `near`, the first after it; then the last before the interval,
+    // looked for only as far as it could still be nearer.
     let mut best = hit(first);
     if best.is_none_or(|x| x < near) {
         if let Some(x) = (first + 1..intervals).find_map(hit) {

@@ -284,6 +284,8 @@ impl PrintedDetector {
                 // A checker (the detector holds crosses and checkers only).
                 _ => width + 1.5,
             };
+            // The first pass only finds the lines near the centre; the
+            // second's points make the fit, at the finer spacing.
             let step = if pass == 0 {
                 (limit / 40.0).max(0.75)
             } else {

@@ -14,6 +14,7 @@
 pub mod api;
 pub mod cli;
 pub mod config;
+pub mod error_code;
 pub mod jobs;
 pub mod pipeline;
 pub mod server;

@@ -8,9 +8,7 @@ use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 
-/// Code of a submission that lost the race for its Idempotency-Key; the
-/// handler answers with the winner's result instead.
-pub const KEY_TAKEN: &str = "idempotency_key_taken";
+pub use crate::error_code::ErrorCode;
 
 /// The media type of problem documents.
 pub const PROBLEM_JSON: &str = "application/problem+json";
@@ -21,24 +19,24 @@ pub struct Problem {
     /// `urn:gcp-tagger:problem:{code}`.
     #[serde(rename = "type")]
     pub type_: String,
-    /// Short summary of the kind of problem.
+    /// Short summary of the kind of problem (the code's title).
     pub title: String,
     /// HTTP status code.
     pub status: u16,
     /// What went wrong in this request, naming the field, part or file.
     pub detail: String,
-    /// Stable machine-readable code, e.g. `invalid_parameter`, `not_found`.
-    pub code: String,
+    /// Stable machine-readable code; each has one status (see `ErrorCode`).
+    pub code: ErrorCode,
     /// The request field or parameter at fault, when there is one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub field: Option<String>,
 }
 
-/// An API error: status, stable code and a human detail.
+/// An API error: a stable code (which carries the status) and a human
+/// detail.
 #[derive(Debug, Clone)]
 pub struct ApiError {
-    pub status: StatusCode,
-    pub code: &'static str,
+    pub code: ErrorCode,
     pub detail: String,
     pub field: Option<String>,
     /// Extra headers (`WWW-Authenticate`, `Allow`, `Retry-After`).
@@ -46,9 +44,8 @@ pub struct ApiError {
 }
 
 impl ApiError {
-    pub fn new(status: StatusCode, code: &'static str, detail: impl Into<String>) -> ApiError {
+    pub fn new(code: ErrorCode, detail: impl Into<String>) -> ApiError {
         ApiError {
-            status,
             code,
             detail: detail.into(),
             field: None,
@@ -68,43 +65,31 @@ impl ApiError {
         self
     }
 
-    pub fn bad_request(code: &'static str, detail: impl Into<String>) -> ApiError {
-        ApiError::new(StatusCode::BAD_REQUEST, code, detail)
-    }
-
     pub fn not_found(what: &str, id: impl std::fmt::Display) -> ApiError {
-        ApiError::new(
-            StatusCode::NOT_FOUND,
-            "not_found",
-            format!("no {what} {id}"),
-        )
-    }
-
-    pub fn conflict(code: &'static str, detail: impl Into<String>) -> ApiError {
-        ApiError::new(StatusCode::CONFLICT, code, detail)
+        ApiError::new(ErrorCode::NotFound, format!("no {what} {id}"))
     }
 
     /// A failure of ours: logged with its cause, reported without it.
     pub fn internal(context: &str, cause: impl std::fmt::Display) -> ApiError {
         tracing::error!(error = %cause, "{context}");
         ApiError::new(
-            StatusCode::INTERNAL_SERVER_ERROR,
-            "internal",
+            ErrorCode::Internal,
             format!("{context}; the server log has the cause"),
         )
+    }
+
+    /// The HTTP status of this error's code.
+    pub fn status(&self) -> StatusCode {
+        StatusCode::from_u16(self.code.status()).expect("error codes carry valid statuses")
     }
 
     pub fn problem(&self) -> Problem {
         Problem {
             type_: format!("urn:gcp-tagger:problem:{}", self.code),
-            title: self
-                .status
-                .canonical_reason()
-                .unwrap_or("Error")
-                .to_string(),
-            status: self.status.as_u16(),
+            title: self.code.title().to_string(),
+            status: self.code.status(),
             detail: self.detail.clone(),
-            code: self.code.to_string(),
+            code: self.code,
             field: self.field.clone(),
         }
     }
@@ -114,7 +99,7 @@ impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let body = serde_json::to_vec(&self.problem()).expect("problems serialize");
         let mut response = (
-            self.status,
+            self.status(),
             [(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON))],
             body,
         )
@@ -128,8 +113,8 @@ impl IntoResponse for ApiError {
 
 impl From<PathRejection> for ApiError {
     fn from(r: PathRejection) -> ApiError {
-        ApiError::bad_request(
-            "invalid_path",
+        ApiError::new(
+            ErrorCode::InvalidPath,
             format!("bad path parameter: {}", r.body_text()),
         )
     }
@@ -137,8 +122,8 @@ impl From<PathRejection> for ApiError {
 
 impl From<QueryRejection> for ApiError {
     fn from(r: QueryRejection) -> ApiError {
-        ApiError::bad_request(
-            "invalid_query",
+        ApiError::new(
+            ErrorCode::InvalidQuery,
             format!("bad query string: {}", r.body_text()),
         )
     }
@@ -147,18 +132,16 @@ impl From<QueryRejection> for ApiError {
 impl From<crate::jobs::StoreError> for ApiError {
     fn from(e: crate::jobs::StoreError) -> ApiError {
         match e {
-            crate::jobs::StoreError::KeyTaken => ApiError::conflict(
-                KEY_TAKEN,
+            crate::jobs::StoreError::KeyTaken => ApiError::new(
+                ErrorCode::IdempotencyKeyTaken,
                 "another request with this Idempotency-Key was recorded first",
             ),
             e @ crate::jobs::StoreError::DuplicateImage(_) => {
-                ApiError::conflict("duplicate_image", e.to_string())
+                ApiError::new(ErrorCode::DuplicateImage, e.to_string())
             }
-            e @ crate::jobs::StoreError::TooManyFrames { .. } => ApiError::new(
-                StatusCode::PAYLOAD_TOO_LARGE,
-                "too_many_frames",
-                e.to_string(),
-            ),
+            e @ crate::jobs::StoreError::TooManyFrames { .. } => {
+                ApiError::new(ErrorCode::TooManyFrames, e.to_string())
+            }
             e => ApiError::internal("the job store failed", e),
         }
     }
@@ -166,29 +149,19 @@ impl From<crate::jobs::StoreError> for ApiError {
 
 impl From<crate::pipeline::frame::InvalidSetting> for ApiError {
     fn from(e: crate::pipeline::frame::InvalidSetting) -> ApiError {
-        ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "invalid_parameter",
-            e.to_string(),
-        )
-        .with_field(e.field)
+        ApiError::new(ErrorCode::InvalidParameter, e.to_string()).with_field(e.field)
     }
 }
 
 /// Unknown routes.
 pub async fn not_found(uri: axum::http::Uri) -> ApiError {
-    ApiError::new(
-        StatusCode::NOT_FOUND,
-        "route_not_found",
-        format!("no route {}", uri.path()),
-    )
+    ApiError::new(ErrorCode::RouteNotFound, format!("no route {}", uri.path()))
 }
 
 /// Known routes called with a method they do not take.
 pub async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> ApiError {
     ApiError::new(
-        StatusCode::METHOD_NOT_ALLOWED,
-        "method_not_allowed",
+        ErrorCode::MethodNotAllowed,
         format!("{} does not take {method}", uri.path()),
     )
 }

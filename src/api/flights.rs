@@ -1,6 +1,7 @@
 //! `/v1/flights`: many frames in one submission, followed and fetched
 //! together.
 
+use crate::error_code::ErrorCode;
 use axum::extract::{RawQuery, Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -48,8 +49,8 @@ pub async fn checked_params(
                 _ => {}
             }
         } else if !PARAM_KEYS.contains(&k.as_str()) {
-            return Err(ApiError::bad_request(
-                "unknown_parameter",
+            return Err(ApiError::new(
+                ErrorCode::UnknownParameter,
                 format!(
                     "unknown query parameter {k:?} (known: {})",
                     [PARAM_KEYS, extra].concat().join(", ")
@@ -130,8 +131,8 @@ async fn submit_flight_inner(
     let (params, extras) = checked_params(query.as_deref(), &["results_to"]).await?;
     let (flight, jobs, skipped) = if sources::is_json(&req) {
         if extras.results_to.is_some() {
-            return Err(ApiError::bad_request(
-                "unknown_parameter",
+            return Err(ApiError::new(
+                ErrorCode::UnknownParameter,
                 "with a JSON body, results_to goes in the body",
             )
             .with_field("results_to"));
@@ -226,8 +227,8 @@ async fn add_frames_inner(
     let mut name = None;
     for (k, v) in form_urlencoded::parse(query.as_deref().unwrap_or("").as_bytes()) {
         if k != "name" {
-            return Err(ApiError::bad_request(
-                "unknown_parameter",
+            return Err(ApiError::new(
+                ErrorCode::UnknownParameter,
                 format!(
                     "unknown query parameter {k:?}: frames added to a flight use its parameters"
                 ),
@@ -241,8 +242,8 @@ async fn add_frames_inner(
     }
     if sources::is_json(&req) {
         if name.is_some() {
-            return Err(ApiError::bad_request(
-                "unknown_parameter",
+            return Err(ApiError::new(
+                ErrorCode::UnknownParameter,
                 "name= is for a raw frame; sources are named by their keys",
             )
             .with_field("name"));
@@ -258,8 +259,8 @@ async fn add_frames_inner(
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.to_ascii_lowercase().starts_with("multipart/"));
     if !is_multipart && name.is_none() {
-        return Err(ApiError::bad_request(
-            "missing_name",
+        return Err(ApiError::new(
+            ErrorCode::MissingName,
             "a raw frame added to a flight needs ?name= (names identify frames in results)",
         )
         .with_field("name"));
@@ -442,8 +443,7 @@ async fn flight_results(
     let jobs = state.store.flight_jobs(id).unwrap_or_default();
     let open = jobs.iter().filter(|j| !j.state.is_terminal()).count();
     if open > 0 && !partial {
-        return Err(ApiError::conflict(
-            "flight_not_finished",
+        return Err(ApiError::new(ErrorCode::FlightNotFinished,
             format!(
                 "{open} of {} jobs are still queued or running; wait (GET /v1/flights/{id}?wait=60) or ask with partial=true",
                 jobs.len()

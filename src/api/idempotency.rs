@@ -5,6 +5,7 @@
 //! scoped to the client's credentials, and a key reused for a different
 //! request (another route or query) is refused.
 
+use crate::error_code::ErrorCode;
 use axum::extract::Request;
 use axum::http::{header, HeaderMap, HeaderName, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -12,7 +13,7 @@ use axum::Json;
 use futures_util::StreamExt;
 use md5::{Digest, Md5};
 
-use super::error::{ApiError, KEY_TAKEN};
+use super::error::ApiError;
 use super::views::{FlightSubmitted, FlightView, JobView};
 use super::AppState;
 use crate::jobs::{IdemKey, IdemRecord};
@@ -39,8 +40,8 @@ pub fn key(
         return Ok(None);
     };
     let bad = || {
-        ApiError::bad_request(
-            "invalid_idempotency_key",
+        ApiError::new(
+            ErrorCode::InvalidIdempotencyKey,
             "Idempotency-Key must be 1 to 255 visible ASCII characters (a UUID is a good key)",
         )
         .with_field("Idempotency-Key")
@@ -90,7 +91,9 @@ where
         }
     }
     match (submit(req, idem.clone()).await, &idem) {
-        (Err(e), Some(k)) if e.code == KEY_TAKEN => replay(state, k, answer).await?.ok_or(e),
+        (Err(e), Some(k)) if e.code == ErrorCode::IdempotencyKeyTaken => {
+            replay(state, k, answer).await?.ok_or(e)
+        }
         (result, _) => result,
     }
 }
@@ -118,9 +121,7 @@ pub async fn replay(
         return Ok(None);
     };
     if record.request != idem.request {
-        return Err(ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "idempotency_key_reused",
+        return Err(ApiError::new(ErrorCode::IdempotencyKeyReused,
             format!(
                 "this Idempotency-Key was used for another request ({}); use a new key per submission",
                 record.request
@@ -134,8 +135,7 @@ pub async fn replay(
 fn answer_for(state: &AppState, record: &IdemRecord, answer: Answer) -> Result<Response, ApiError> {
     let gone = || {
         ApiError::new(
-            StatusCode::GONE,
-            "idempotent_result_gone",
+            ErrorCode::IdempotentResultGone,
             "the submission this Idempotency-Key made has been deleted",
         )
     };

@@ -1,5 +1,6 @@
 //! `/v1/jobs`: one frame in, its state, its results, cancel and delete.
 
+use crate::error_code::ErrorCode;
 use axum::extract::{RawQuery, Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -116,8 +117,8 @@ async fn submit_job_inner(
         // One frame named in object storage: `{"sources": ["s3://b/key"]}`.
         let sourced = sources::receive(&state, req, false).await?;
         if sourced.jobs.len() != 1 {
-            return Err(ApiError::bad_request(
-                "expected_one_frame",
+            return Err(ApiError::new(
+                ErrorCode::ExpectedOneFrame,
                 format!(
                     "the sources name {} frames; a job is one frame (POST /v1/flights takes many)",
                     sourced.jobs.len()
@@ -131,13 +132,7 @@ async fn submit_job_inner(
     }
     let upload = upload::receive(&state, req, Expect::One, extras.name).await?;
     if let Some(Err(e)) = upload.parts.first().map(|p| &p.content) {
-        let (status, code) = match e.code.as_str() {
-            "empty_frame" => (StatusCode::BAD_REQUEST, "empty_frame"),
-            "frame_too_large" => (StatusCode::PAYLOAD_TOO_LARGE, "frame_too_large"),
-            "unreadable_frame" => (StatusCode::UNPROCESSABLE_ENTITY, "unreadable_frame"),
-            _ => (StatusCode::UNSUPPORTED_MEDIA_TYPE, "not_an_image"),
-        };
-        return Err(ApiError::new(status, code, e.message.clone()));
+        return Err(ApiError::new(e.code, e.message.clone()));
     }
     let (store, data) = (state.store.clone(), state.data.clone());
     let (_, jobs) = tokio::task::spawn_blocking(move || {
@@ -272,8 +267,8 @@ async fn job_results(state: AppState, id: Uuid, format: Format) -> Result<Respon
             .as_ref()
             .map(|e| format!(": {}", e.message))
             .unwrap_or_default();
-        return Err(ApiError::conflict(
-            "job_not_succeeded",
+        return Err(ApiError::new(
+            ErrorCode::JobNotSucceeded,
             format!(
                 "job {id} is {}{why}; results exist once it succeeded",
                 job.state.as_str()

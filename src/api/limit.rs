@@ -3,11 +3,12 @@
 //! per minute, with a minute's worth of burst. Over the limit, a 429
 //! problem with `Retry-After`. Health and metrics routes are not limited.
 
+use crate::error_code::ErrorCode;
 use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::Instant;
 
-use axum::http::{header, StatusCode};
+use axum::http::header;
 
 use super::error::ApiError;
 
@@ -64,8 +65,7 @@ impl RateLimiter {
     pub fn take(&self, client: &str) -> Result<(), ApiError> {
         self.take_at(client, Instant::now()).map_err(|wait| {
             ApiError::new(
-                StatusCode::TOO_MANY_REQUESTS,
-                "rate_limited",
+                ErrorCode::RateLimited,
                 format!(
                     "more than {} requests a minute from this client; retry in {wait} s",
                     self.per_minute

@@ -21,13 +21,14 @@ pub mod upload;
 pub mod views;
 pub mod watch;
 
+use crate::error_code::ErrorCode;
 use std::net::SocketAddr;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Instant;
 
 use axum::extract::{ConnectInfo, DefaultBodyLimit, MatchedPath, Request, State};
-use axum::http::{header, HeaderName, HeaderValue, Method, StatusCode};
+use axum::http::{header, HeaderName, HeaderValue, Method};
 use axum::middleware::{self, Next};
 use axum::response::Response;
 use axum::Router;
@@ -313,8 +314,7 @@ async fn refuse_new_work(
     let reads = [Method::GET, Method::HEAD, Method::OPTIONS];
     if *state.shutdown.borrow() && !reads.contains(req.method()) {
         return Err(ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "shutting_down",
+            ErrorCode::ShuttingDown,
             "the service is shutting down; send this again to its next start or another replica",
         )
         .with_header(header::RETRY_AFTER, "5"));
@@ -374,7 +374,7 @@ fn verify_key(keys: &[String], req: &Request) -> Result<usize, ApiError> {
         .and_then(|v| v.strip_prefix("Bearer "))
         .map(str::trim);
     let unauthorized = |detail: &str| {
-        ApiError::new(StatusCode::UNAUTHORIZED, "unauthorized", detail)
+        ApiError::new(ErrorCode::Unauthorized, detail)
             .with_header(header::WWW_AUTHENTICATE, "Bearer realm=\"gcp-tagger\"")
     };
     let Some(given) = given else {

@@ -1,9 +1,10 @@
 //! Operations routes: liveness, readiness and Prometheus metrics.
 
+use crate::error_code::ErrorCode;
 use std::sync::atomic::Ordering;
 
 use axum::extract::State;
-use axum::http::{header, HeaderValue, StatusCode};
+use axum::http::{header, HeaderValue};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
@@ -43,8 +44,7 @@ pub async fn livez(State(state): State<AppState>) -> Json<Health> {
 pub async fn readyz(State(state): State<AppState>) -> Result<Json<Health>, ApiError> {
     if *state.shutdown.borrow() || !state.ready.load(Ordering::SeqCst) {
         return Err(ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "not_ready",
+            ErrorCode::NotReady,
             "the service is starting or shutting down",
         )
         .with_header(header::RETRY_AFTER, "5"));

@@ -1,7 +1,8 @@
 //! Results as CSV or GeoJSON over HTTP: content negotiation and headers
 //! around [`crate::jobs::results::render_jobs`].
 
-use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use crate::error_code::ErrorCode;
+use axum::http::{header, HeaderMap, HeaderValue};
 use axum::response::{IntoResponse, Response};
 
 use super::error::ApiError;
@@ -36,8 +37,7 @@ pub fn negotiate(headers: &HeaderMap) -> Result<Format, ApiError> {
         }
     }
     Err(ApiError::new(
-        StatusCode::NOT_ACCEPTABLE,
-        "not_acceptable",
+        ErrorCode::NotAcceptable,
         format!("cannot answer Accept: {accept}; results are text/csv or application/geo+json"),
     ))
 }

@@ -4,11 +4,12 @@
 //! reviewer's accept / reject, stored with the job and honoured by every
 //! result and export.
 
+use crate::error_code::ErrorCode;
 use std::collections::HashMap;
 
 use axum::body::Bytes;
 use axum::extract::{Path, State};
-use axum::http::{header, HeaderValue, StatusCode};
+use axum::http::{header, HeaderValue};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::{Deserialize, Serialize};
@@ -186,8 +187,8 @@ fn succeeded(state: &AppState, id: Uuid) -> Result<JobRecord, ApiError> {
         .job(id)
         .ok_or_else(|| ApiError::not_found("job", id))?;
     if job.state != JobState::Succeeded {
-        return Err(ApiError::conflict(
-            "job_not_succeeded",
+        return Err(ApiError::new(
+            ErrorCode::JobNotSucceeded,
             format!(
                 "job {id} is {}; pictures exist once it has succeeded",
                 job.state.as_str()
@@ -215,11 +216,9 @@ async fn picture(
             bytes,
         )
             .into_response()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(ApiError::new(
-            StatusCode::NOT_FOUND,
-            "not_found",
-            format!("no {what}"),
-        )),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err(ApiError::new(ErrorCode::NotFound, format!("no {what}")))
+        }
         Err(e) => Err(ApiError::internal("reading a picture", e)),
     }
 }
@@ -272,12 +271,15 @@ pub async fn get_preview(
 /// Parses the `{id}` and `{index}` of a route.
 fn job_and_index(id: &str, index: &str) -> Result<(Uuid, u32), ApiError> {
     let id: Uuid = id.parse().map_err(|_| {
-        ApiError::bad_request("invalid_id", format!("{id:?} is not a job id (a UUID)"))
-            .with_field("id")
+        ApiError::new(
+            ErrorCode::InvalidId,
+            format!("{id:?} is not a job id (a UUID)"),
+        )
+        .with_field("id")
     })?;
     let index: u32 = index.parse().map_err(|_| {
-        ApiError::bad_request(
-            "invalid_index",
+        ApiError::new(
+            ErrorCode::InvalidIndex,
             format!("{index:?} is not a detection's place in its frame (0, 1, 2, ...)"),
         )
         .with_field("index")
@@ -311,8 +313,7 @@ pub async fn put_review(
 ) -> Result<Json<ObservationView>, ApiError> {
     let (id, index) = job_and_index(&id, &index)?;
     let request: ReviewRequest = serde_json::from_slice(&body).map_err(|e| {
-        ApiError::bad_request(
-            "invalid_body",
+        ApiError::new(ErrorCode::InvalidBody,
             format!(
                 "the body must be {{\"verdict\": \"accepted\" | \"rejected\" | \"unreviewed\"}}: {e}"
             ),
@@ -327,8 +328,7 @@ pub async fn put_review(
             .map_err(|e| ApiError::internal("reading a result", e))?;
         if index as usize >= frame.targets.len() {
             return Err(ApiError::new(
-                StatusCode::NOT_FOUND,
-                "not_found",
+                ErrorCode::NotFound,
                 format!(
                     "job {id} has {} detection(s); there is no detection {index}",
                     frame.targets.len()

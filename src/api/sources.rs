@@ -6,8 +6,9 @@
 //! becomes a job that starts `fetching` and is queued once its frame is in
 //! the spool (see [`crate::jobs::fetch`]).
 
+use crate::error_code::ErrorCode;
 use axum::extract::Request;
-use axum::http::{header, StatusCode};
+use axum::http::header;
 use futures_util::StreamExt;
 use serde::Deserialize;
 
@@ -69,14 +70,13 @@ pub async fn receive(
         .await
         .map_err(|_| {
             ApiError::new(
-                StatusCode::PAYLOAD_TOO_LARGE,
-                "request_too_large",
+                ErrorCode::RequestTooLarge,
                 format!("a source request is at most {MAX_BODY_BYTES} bytes of JSON"),
             )
         })?;
     let request: SourceRequest = serde_json::from_slice(&body).map_err(|e| {
-        ApiError::bad_request(
-            "invalid_json",
+        ApiError::new(
+            ErrorCode::InvalidJson,
             format!(
                 "bad source request: {e}; expected {{\"sources\": [\"s3://bucket/key\", ...]}}"
             ),
@@ -84,14 +84,14 @@ pub async fn receive(
     })?;
     if request.sources.is_empty() {
         return Err(
-            ApiError::bad_request("invalid_source", "\"sources\" names no frame")
+            ApiError::new(ErrorCode::InvalidSource, "\"sources\" names no frame")
                 .with_field("sources"),
         );
     }
     let results_to =
         match request.results_to {
-            Some(_) if !allow_results_to => return Err(ApiError::bad_request(
-                "invalid_source",
+            Some(_) if !allow_results_to => return Err(ApiError::new(
+                ErrorCode::InvalidSource,
                 "results_to is set when a flight is created; frames added later use the flight's",
             )
             .with_field("results_to")),
@@ -125,8 +125,7 @@ pub async fn receive(
         for object in found.objects {
             if jobs.len() == limits.max_frames_per_request {
                 return Err(ApiError::new(
-                    StatusCode::PAYLOAD_TOO_LARGE,
-                    "too_many_frames",
+                    ErrorCode::TooManyFrames,
                     format!(
                         "the sources name more than {} frames (--max-frames-per-request)",
                         limits.max_frames_per_request
@@ -174,7 +173,7 @@ fn new_job(url: &S3Url, object: ObjectRef, max_frame_bytes: u64) -> NewJob {
         S3Url::Object { .. } => sanitize_name(&object.key).unwrap_or_else(|| object.key.clone()),
     };
     let rejected = (object.size > max_frame_bytes).then(|| JobError {
-        code: "frame_too_large".into(),
+        code: ErrorCode::FrameTooLarge,
         message: S3Error::TooLarge {
             url: object.url(),
             bytes: object.size,
@@ -205,8 +204,8 @@ pub fn checked_results_to(state: &AppState, raw: &str) -> Result<String, ApiErro
             }
             Ok(url.to_string())
         }
-        Ok(_) => Err(field(ApiError::bad_request(
-            "invalid_source",
+        Ok(_) => Err(field(ApiError::new(
+            ErrorCode::InvalidSource,
             format!("results_to {raw:?} must be a prefix ending in '/'"),
         ))),
         Err(e) => Err(field(s3_problem(e))),
@@ -217,21 +216,9 @@ fn source_error(e: S3Error, index: usize) -> ApiError {
     s3_problem(e).with_field(format!("sources[{index}]"))
 }
 
-/// The problem for a source that cannot be used. Names the client can fix
-/// are 422 (or 403 outside the allow-list); the store refusing the
-/// server's credentials or being unreachable is 502.
+/// The problem for a source that cannot be used: its code carries the
+/// status (names the client can fix are 422, 403 outside the allow-list;
+/// the store refusing the server's credentials or being unreachable 502).
 pub fn s3_problem(e: S3Error) -> ApiError {
-    let status = match &e {
-        S3Error::BadUrl(_)
-        | S3Error::NoSuchBucket(_)
-        | S3Error::NotFound(_)
-        | S3Error::EmptyPrefix(_)
-        | S3Error::Changed(_)
-        | S3Error::Integrity(..)
-        | S3Error::TooLarge { .. } => StatusCode::UNPROCESSABLE_ENTITY,
-        S3Error::BucketNotAllowed(_) => StatusCode::FORBIDDEN,
-        S3Error::AccessDenied(..) | S3Error::Unavailable(..) => StatusCode::BAD_GATEWAY,
-        S3Error::Spool(..) => StatusCode::INTERNAL_SERVER_ERROR,
-    };
-    ApiError::new(status, e.code(), e.to_string())
+    ApiError::new(e.code(), e.to_string())
 }

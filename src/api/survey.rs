@@ -1,9 +1,10 @@
 //! `/v1/flights/{id}/survey` and `/v1/flights/{id}/exports/{file}`: a
 //! flight's surveyed points, and the GCP files made from its detections.
 
+use crate::error_code::ErrorCode;
 use axum::body::Bytes;
 use axum::extract::{Path, RawQuery, State};
-use axum::http::{header, HeaderValue, StatusCode};
+use axum::http::{header, HeaderValue};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
@@ -24,27 +25,20 @@ const MAX_SURVEY_BYTES: usize = 4 << 20;
 
 /// An uploaded text file (`what`: "survey", "assignment file"), at most
 /// [`MAX_SURVEY_BYTES`] of UTF-8; `invalid` is the code for other bytes.
-fn text_body(body: &Bytes, what: &str, invalid: &'static str) -> Result<String, ApiError> {
+fn text_body(body: &Bytes, what: &str, invalid: ErrorCode) -> Result<String, ApiError> {
     if body.len() > MAX_SURVEY_BYTES {
         return Err(ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "request_too_large",
+            ErrorCode::RequestTooLarge,
             format!("a {what} is at most {MAX_SURVEY_BYTES} bytes"),
         ));
     }
-    String::from_utf8(body.to_vec()).map_err(|e| {
-        ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            invalid,
-            format!("the {what} is not UTF-8 text: {e}"),
-        )
-    })
+    String::from_utf8(body.to_vec())
+        .map_err(|e| ApiError::new(invalid, format!("the {what} is not UTF-8 text: {e}")))
 }
 
 fn no_survey(id: Uuid) -> ApiError {
     ApiError::new(
-        StatusCode::NOT_FOUND,
-        "no_survey",
+        ErrorCode::NoSurvey,
         format!("flight {id} has no survey: PUT /v1/flights/{id}/survey"),
     )
 }
@@ -111,8 +105,8 @@ pub async fn put_survey(
     let mut crs = None;
     for (k, v) in form_urlencoded::parse(query.as_deref().unwrap_or("").as_bytes()) {
         if k != "crs" {
-            return Err(ApiError::bad_request(
-                "unknown_parameter",
+            return Err(ApiError::new(
+                ErrorCode::UnknownParameter,
                 format!("unknown query parameter {k:?} (known: crs)"),
             )
             .with_field(k.into_owned()));
@@ -122,7 +116,7 @@ pub async fn put_survey(
     if state.store.flight(id).is_none() {
         return Err(ApiError::not_found("flight", id));
     }
-    let text = text_body(&body, "survey", "invalid_survey")?;
+    let text = text_body(&body, "survey", ErrorCode::InvalidSurvey)?;
     // A new survey starts without assignments: they named the old one's points.
     let stored = StoredSurvey {
         crs,
@@ -133,7 +127,7 @@ pub async fn put_survey(
     tokio::task::spawn_blocking(move || {
         let survey = stored
             .parse()
-            .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_survey", e.0))?;
+            .map_err(|e| ApiError::new(ErrorCode::InvalidSurvey, e.0))?;
         gcp::save_survey(&data, id, &stored)
             .map_err(|e| ApiError::internal("storing the survey", e))?;
         Ok(Json(SurveySummary::new(&survey, id)))
@@ -164,7 +158,7 @@ pub async fn put_assignments(
     IdPath(id): IdPath,
     body: Bytes,
 ) -> Result<Json<AssignmentsSummary>, ApiError> {
-    let text = text_body(&body, "assignment file", "invalid_assignments")?;
+    let text = text_body(&body, "assignment file", ErrorCode::InvalidAssignments)?;
     if state.store.flight(id).is_none() {
         return Err(ApiError::not_found("flight", id));
     }
@@ -174,9 +168,9 @@ pub async fn put_assignments(
             .map_err(|e| ApiError::internal("reading the survey", e))?
             .ok_or_else(|| no_survey(id))?;
         stored.assignments = Some(text);
-        let survey = stored.parse().map_err(|e| {
-            ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_assignments", e.0)
-        })?;
+        let survey = stored
+            .parse()
+            .map_err(|e| ApiError::new(ErrorCode::InvalidAssignments, e.0))?;
         gcp::save_survey(&data, id, &stored)
             .map_err(|e| ApiError::internal("storing the assignments", e))?;
         Ok(Json(AssignmentsSummary {
@@ -256,8 +250,7 @@ pub async fn get_export(
     let index = FILES.iter().position(|f| *f == file);
     if index.is_none() && file != BUNDLE {
         return Err(ApiError::new(
-            StatusCode::NOT_FOUND,
-            "not_found",
+            ErrorCode::NotFound,
             format!(
                 "no export {file:?}; exports are {} and {BUNDLE} (all of them)",
                 FILES.join(", ")
@@ -272,8 +265,7 @@ pub async fn get_export(
     let jobs = state.store.flight_jobs(id).unwrap_or_default();
     let open = jobs.iter().filter(|j| !j.state.is_terminal()).count();
     if open > 0 && !q.partial.unwrap_or(false) {
-        return Err(ApiError::conflict(
-            "flight_not_finished",
+        return Err(ApiError::new(ErrorCode::FlightNotFinished,
             format!(
                 "{open} of {} jobs have not ended; wait (GET /v1/flights/{id}?wait=60) or ask with partial=true",
                 jobs.len()

@@ -3,6 +3,7 @@
 //! bytes arrive, each file recognised as an image by its first bytes, then
 //! moved into `frames/` and recorded as jobs in one store transaction.
 
+use crate::error_code::ErrorCode;
 use std::path::PathBuf;
 
 use axum::extract::{FromRequest, Multipart, Request};
@@ -94,15 +95,18 @@ pub async fn receive(
     let mut total = 0u64;
     if content_type.starts_with("multipart/form-data") {
         let mut multipart = Multipart::from_request(req, &()).await.map_err(|e| {
-            ApiError::bad_request("invalid_multipart", format!("bad multipart body: {e}"))
+            ApiError::new(
+                ErrorCode::InvalidMultipart,
+                format!("bad multipart body: {e}"),
+            )
         })?;
         loop {
             let field = multipart.next_field().await.map_err(multipart_error)?;
             let Some(field) = field else { break };
             let field_name = field.name().unwrap_or("").to_string();
             let Some(file_name) = field.file_name().map(str::to_string) else {
-                return Err(ApiError::bad_request(
-                    "unexpected_field",
+                return Err(ApiError::new(
+                    ErrorCode::UnexpectedField,
                     format!(
                         "multipart field {field_name:?} is not a file; send frames as file parts \
                          (curl -F frame=@DJI_0001.JPG) and parameters in the query string"
@@ -112,8 +116,7 @@ pub async fn receive(
             };
             if upload.parts.len() == limits.max_frames_per_request {
                 return Err(ApiError::new(
-                    StatusCode::PAYLOAD_TOO_LARGE,
-                    "too_many_frames",
+                    ErrorCode::TooManyFrames,
                     format!(
                         "more than {} frames in one request",
                         limits.max_frames_per_request
@@ -121,8 +124,8 @@ pub async fn receive(
                 ));
             }
             if expect == Expect::One && !upload.parts.is_empty() {
-                return Err(ApiError::bad_request(
-                    "expected_one_frame",
+                return Err(ApiError::new(
+                    ErrorCode::ExpectedOneFrame,
                     "this route takes one frame; POST /v1/flights takes many",
                 ));
             }
@@ -147,8 +150,7 @@ pub async fn receive(
             || content_type.starts_with("text/")
         {
             return Err(ApiError::new(
-                StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "unsupported_media_type",
+                ErrorCode::UnsupportedMediaType,
                 format!(
                     "Content-Type {content_type:?}: send the frame's bytes (image/jpeg, \
                      image/tiff, image/png, application/octet-stream) or multipart/form-data"
@@ -157,8 +159,7 @@ pub async fn receive(
         }
         if expect == Expect::Many {
             return Err(ApiError::new(
-                StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "multipart_required",
+                ErrorCode::MultipartRequired,
                 "a flight is submitted as multipart/form-data, one file part per frame",
             ));
         }
@@ -168,7 +169,7 @@ pub async fn receive(
         let mut stream = req
             .into_body()
             .into_data_stream()
-            .map(|r| r.map_err(|e| ApiError::bad_request("body_read_failed", e.to_string())));
+            .map(|r| r.map_err(|e| ApiError::new(ErrorCode::BodyReadFailed, e.to_string())));
         match spool_stream(state, name, &mut stream, &mut total).await {
             Ok(part) => upload.parts.push(part),
             Err(e) => {
@@ -178,8 +179,8 @@ pub async fn receive(
         }
     }
     if upload.parts.is_empty() {
-        return Err(ApiError::bad_request(
-            "no_frames",
+        return Err(ApiError::new(
+            ErrorCode::NoFrames,
             "the request carries no file part",
         ));
     }
@@ -195,8 +196,8 @@ async fn spool_stream(
 ) -> Result<Part, ApiError> {
     let limits = &state.limits;
     let image = sanitize_name(&raw_name).ok_or_else(|| {
-        ApiError::bad_request(
-            "invalid_file_name",
+        ApiError::new(
+            ErrorCode::InvalidFileName,
             format!("file name {raw_name:?} has no usable name"),
         )
     })?;
@@ -214,8 +215,7 @@ async fn spool_stream(
         *total += chunk.len() as u64;
         if bytes > limits.max_frame_bytes {
             return Err(ApiError::new(
-                StatusCode::PAYLOAD_TOO_LARGE,
-                "frame_too_large",
+                ErrorCode::FrameTooLarge,
                 format!(
                     "{image}: larger than the {} MiB limit per frame",
                     limits.max_frame_bytes >> 20
@@ -236,7 +236,7 @@ async fn spool_stream(
     drop(file);
     let content = if bytes == 0 {
         Err(JobError {
-            code: "empty_frame".into(),
+            code: ErrorCode::EmptyFrame,
             message: format!("{image}: the file is empty"),
         })
     } else {
@@ -249,14 +249,14 @@ async fn spool_stream(
                         .map_err(|e| ApiError::internal("reading a frame header", e))?;
                 match claimed {
                     Err(e) => Err(JobError {
-                        code: e.code().into(),
+                        code: e.code(),
                         message: format!("{image}: {e}"),
                     }),
                     Ok(_) => Ok((guard.0.take().expect("path kept"), ext)),
                 }
             }
             None => Err(JobError {
-                code: "not_an_image".into(),
+                code: ErrorCode::NotAnImage,
                 message: format!(
                     "{image}: not a JPEG, TIFF or PNG image (first bytes {})",
                     magic_hex(&head)
@@ -283,8 +283,7 @@ fn spool_error(e: std::io::Error) -> ApiError {
 
 pub fn insufficient_storage(why: &str) -> ApiError {
     ApiError::new(
-        StatusCode::INSUFFICIENT_STORAGE,
-        "insufficient_storage",
+        ErrorCode::InsufficientStorage,
         format!("{why}; running jobs go on, try again once space is freed"),
     )
     .with_header(axum::http::header::RETRY_AFTER, "60")
@@ -341,8 +340,7 @@ impl Drop for RemoveOnDrop {
 
 fn request_too_large(limits: &UploadLimits) -> ApiError {
     ApiError::new(
-        StatusCode::PAYLOAD_TOO_LARGE,
-        "request_too_large",
+        ErrorCode::RequestTooLarge,
         format!(
             "the request is larger than the {} MiB limit",
             limits.max_request_bytes >> 20
@@ -353,10 +351,10 @@ fn request_too_large(limits: &UploadLimits) -> ApiError {
 fn multipart_error(e: axum::extract::multipart::MultipartError) -> ApiError {
     let status = e.status();
     if status == StatusCode::PAYLOAD_TOO_LARGE {
-        ApiError::new(status, "request_too_large", e.body_text())
+        ApiError::new(ErrorCode::RequestTooLarge, e.body_text())
     } else {
-        ApiError::bad_request(
-            "invalid_multipart",
+        ApiError::new(
+            ErrorCode::InvalidMultipart,
             format!("bad multipart body: {}", e.body_text()),
         )
     }
@@ -403,9 +401,7 @@ pub fn check_names<'a>(
     };
     let names: Vec<&str> = names.collect();
     if seen.len() + names.len() > max_frames {
-        return Err(ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "too_many_frames",
+        return Err(ApiError::new(ErrorCode::TooManyFrames,
             format!(
                 "the flight would hold {} frames, more than the {max_frames} allowed (--max-frames-per-flight)",
                 seen.len() + names.len()
@@ -414,8 +410,7 @@ pub fn check_names<'a>(
     }
     for name in names {
         if !seen.insert(name.to_string()) {
-            return Err(ApiError::conflict(
-                "duplicate_image",
+            return Err(ApiError::new(ErrorCode::DuplicateImage,
                 format!(
                     "{name}: a frame of this name is already in the flight; names identify frames in results"
                 ),

@@ -2,6 +2,7 @@
 //! the query types of list and wait requests. These types are the OpenAPI
 //! schemas.
 
+use crate::error_code::ErrorCode;
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
@@ -287,8 +288,8 @@ pub fn page_limit(limit: Option<usize>) -> Result<usize, super::error::ApiError>
     match limit {
         None => Ok(DEFAULT_LIMIT),
         Some(n) if (1..=MAX_LIMIT).contains(&n) => Ok(n),
-        Some(n) => Err(super::error::ApiError::bad_request(
-            "invalid_query",
+        Some(n) => Err(super::error::ApiError::new(
+            ErrorCode::InvalidQuery,
             format!("limit {n} is outside 1..={MAX_LIMIT}"),
         )
         .with_field("limit")),

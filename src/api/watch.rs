@@ -2,6 +2,7 @@
 //! events. Both sleep on the store's change signal and end early when the
 //! server shuts down.
 
+use crate::error_code::ErrorCode;
 use std::convert::Infallible;
 use std::time::Duration;
 
@@ -24,8 +25,8 @@ pub fn wait_duration(wait: Option<u64>) -> Result<Duration, ApiError> {
     match wait {
         None => Ok(Duration::ZERO),
         Some(s) if s <= MAX_WAIT_SECS => Ok(Duration::from_secs(s)),
-        Some(s) => Err(ApiError::bad_request(
-            "invalid_query",
+        Some(s) => Err(ApiError::new(
+            ErrorCode::InvalidQuery,
             format!("wait={s} is above the {MAX_WAIT_SECS} s maximum"),
         )
         .with_field("wait")),

@@ -9,6 +9,7 @@
 //! A fetch cut off by a stop leaves its job `fetching` (the spool is
 //! emptied at start) and the next start fetches it again.
 
+use crate::error_code::ErrorCode;
 use std::collections::HashSet;
 use std::sync::Arc;
 
@@ -131,7 +132,11 @@ impl FetchTask {
                             Err(e) => Err(e),
                         }
                     }
-                    Err(e) => self.fail(&job, "internal", format!("cannot move the frame: {e}")),
+                    Err(e) => self.fail(
+                        &job,
+                        ErrorCode::Internal,
+                        format!("cannot move the frame: {e}"),
+                    ),
                 }
             }
             Err(error) => {
@@ -145,14 +150,13 @@ impl FetchTask {
         }
     }
 
-    fn fail(&self, job: &JobRecord, code: &str, message: String) -> Result<(), super::StoreError> {
-        self.store.fetch_failed(
-            job.id,
-            &JobError {
-                code: code.into(),
-                message,
-            },
-        )
+    fn fail(
+        &self,
+        job: &JobRecord,
+        code: ErrorCode,
+        message: String,
+    ) -> Result<(), super::StoreError> {
+        self.store.fetch_failed(job.id, &JobError { code, message })
     }
 
     /// Streams the object into `tmp`; returns its image type and size.
@@ -162,15 +166,12 @@ impl FetchTask {
         source: &str,
         tmp: &std::path::Path,
     ) -> Result<(&'static str, u64), JobError> {
-        let error = |code: &str, message: String| JobError {
-            code: code.into(),
-            message,
-        };
+        let error = |code: ErrorCode, message: String| JobError { code, message };
         let (bucket, key) = match S3Url::parse(source) {
             Ok(S3Url::Object { bucket, key }) => (bucket, key),
             _ => {
                 return Err(error(
-                    "invalid_source",
+                    ErrorCode::InvalidSource,
                     format!("{source:?} names no object"),
                 ))
             }
@@ -187,11 +188,11 @@ impl FetchTask {
             .await
             .map_err(|e| error(e.code(), e.to_string()))?;
         if bytes == 0 {
-            return Err(error("empty_frame", format!("{source} is empty")));
+            return Err(error(ErrorCode::EmptyFrame, format!("{source} is empty")));
         }
         let ext = sniff_image(&head).ok_or_else(|| {
             error(
-                "not_an_image",
+                ErrorCode::NotAnImage,
                 format!(
                     "{source} is not a JPEG, TIFF or PNG (first bytes: {})",
                     magic_hex(&head)
@@ -202,7 +203,7 @@ impl FetchTask {
         let (path, pixels) = (tmp.to_path_buf(), self.pixels);
         let checked = tokio::task::spawn_blocking(move || header::check(&path, pixels))
             .await
-            .map_err(|e| error("internal", e.to_string()))?;
+            .map_err(|e| error(ErrorCode::Internal, e.to_string()))?;
         checked.map_err(|e| error(e.code(), format!("{source}: {e}")))?;
         Ok((ext, bytes))
     }

@@ -4,24 +4,24 @@
 //! in GDAL or OpenCV, or a runaway, ends that process only; the next job
 //! gets a fresh one.
 //!
-//! For each job (a `job {json}` line on its stdin) the process reads the
+//! For each job (a [`ParentLine::Job`] on its stdin) the process reads the
 //! frame's header, says how much memory it needs, and waits; the parent
-//! takes that share of the RAM budget and answers `go` with the limits; the
+//! takes that share of the RAM budget and answers [`ParentLine::Go`] with
+//! the limits; the
 //! process then caps itself for the job (soft RLIMIT_DATA at its current
 //! data size plus the reservation and headroom, soft RLIMIT_CPU from the frame's
 //! size), runs, and lifts the caps afterwards. It dies with the server (PR_SET_PDEATHSIG, set by the child:
 //! spawning goes through posix_spawn, never a bare fork, see
-//! [`JobChild::spawn`]). Protocol, one line each
-//! on the child's stdout:
+//! [`JobChild::spawn`]). Protocol: one JSON message per line, a
+//! [`ParentLine`] on the child's stdin, a [`ChildLine`] on its stdout, e.g.
 //!
 //! ```text
-//! header WIDTH HEIGHT NEED_BYTES
-//! tile DONE TOTAL
-//! done TARGETS WIDTH HEIGHT          (result JSON written to --result)
-//! error CODE MESSAGE
+//! {"kind":"header","width":4000,"height":3000,"need":71303168}
+//! {"kind":"go","data_limit":536870912,"cpu_secs":84}
+//! {"kind":"tile","done":3,"total":12}
+//! {"kind":"done","targets":8,"width":4000,"height":3000}   (result JSON in the order's file)
+//! {"kind":"error","code":"unreadable_frame","message":"..."}
 //! ```
-//!
-//! and on its stdin `go DATA_LIMIT_BYTES CPU_SECS`.
 
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::process::ExitStatusExt;
@@ -37,9 +37,21 @@ use crate::pipeline::pictures::Pictures;
 use crate::pipeline::raster::{open_frame, RasterError};
 
 use super::params::JobParams;
+use crate::error_code::ErrorCode;
+
+/// What the parent says to the child.
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ParentLine {
+    /// Run this job: read its header and answer [`ChildLine::Header`].
+    Job(JobOrder),
+    /// Go on with the job within these limits.
+    Go { data_limit: u64, cpu_secs: u64 },
+}
 
 /// What the child said last.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
 pub enum ChildLine {
     Header {
         width: u32,
@@ -56,7 +68,7 @@ pub enum ChildLine {
         height: u32,
     },
     Error {
-        code: String,
+        code: ErrorCode,
         message: String,
     },
     /// A condition the user should hear that did not stop the frame.
@@ -66,38 +78,10 @@ pub enum ChildLine {
 }
 
 impl ChildLine {
+    /// A line the child wrote; None for anything else (a library's stray
+    /// output on stdout).
     pub fn parse(line: &str) -> Option<ChildLine> {
-        let mut f = line.splitn(4, ' ');
-        let kind = f.next()?;
-        let mut num = || f.next()?.trim().parse::<u64>().ok();
-        Some(match kind {
-            "header" => ChildLine::Header {
-                width: num()? as u32,
-                height: num()? as u32,
-                need: num()?,
-            },
-            "tile" => ChildLine::Tile {
-                done: num()? as u32,
-                total: num()? as u32,
-            },
-            "done" => ChildLine::Done {
-                targets: num()? as u32,
-                width: num()? as u32,
-                height: num()? as u32,
-            },
-            "warning" => ChildLine::Warning {
-                message: line.strip_prefix("warning ")?.to_string(),
-            },
-            "error" => {
-                let rest = line.strip_prefix("error ")?;
-                let (code, message) = rest.split_once(' ').unwrap_or((rest, ""));
-                ChildLine::Error {
-                    code: code.to_string(),
-                    message: message.to_string(),
-                }
-            }
-            _ => return None,
-        })
+        serde_json::from_str(line).ok()
     }
 }
 
@@ -180,16 +164,19 @@ impl JobChild {
     /// [`go`]: JobChild::go
     pub fn send(&mut self, order: &JobOrder) -> std::io::Result<()> {
         let stdin = self.stdin.as_mut().ok_or(std::io::ErrorKind::BrokenPipe)?;
-        let json = serde_json::to_string(order).expect("job order serializes");
-        writeln!(stdin, "job {json}")?;
-        stdin.flush()
+        write_line(stdin, &ParentLine::Job(order.clone()))
     }
 
     /// Lets the child run with these limits.
     pub fn go(&mut self, data_limit: u64, cpu_secs: u64) -> std::io::Result<()> {
         let stdin = self.stdin.as_mut().ok_or(std::io::ErrorKind::BrokenPipe)?;
-        writeln!(stdin, "go {data_limit} {cpu_secs}")?;
-        stdin.flush()
+        write_line(
+            stdin,
+            &ParentLine::Go {
+                data_limit,
+                cpu_secs,
+            },
+        )
     }
 
     pub fn kill(&mut self) {
@@ -233,16 +220,16 @@ pub fn signal_name(sig: i32) -> &'static str {
 }
 
 /// Stable codes for frames that cannot be read.
-pub fn raster_code(e: &RasterError) -> &'static str {
+pub fn raster_code(e: &RasterError) -> ErrorCode {
     match e {
-        RasterError::Unsupported(_) => "unsupported_frame",
-        RasterError::TooSmall { .. } => "frame_too_small",
-        RasterError::Bands(_) => "unsupported_bands",
-        RasterError::Empty => "empty_frame",
+        RasterError::Unsupported(_) => ErrorCode::UnsupportedFrame,
+        RasterError::TooSmall { .. } => ErrorCode::FrameTooSmall,
+        RasterError::Bands(_) => ErrorCode::UnsupportedBands,
+        RasterError::Empty => ErrorCode::EmptyFrame,
         RasterError::Io(_)
         | RasterError::RefusedPath(_)
         | RasterError::Decode { .. }
-        | RasterError::CutOff { .. } => "unreadable_frame",
+        | RasterError::CutOff { .. } => ErrorCode::UnreadableFrame,
     }
 }
 
@@ -254,8 +241,15 @@ pub struct RunJobArgs {
     pub parent: Option<u32>,
 }
 
-/// One job as the worker sends it to its process (a `job` line).
-#[derive(Debug, serde::Serialize, serde::Deserialize)]
+/// One message as one line of JSON.
+fn write_line(out: &mut impl Write, message: &impl serde::Serialize) -> std::io::Result<()> {
+    let json = serde_json::to_string(message).expect("protocol messages serialize");
+    writeln!(out, "{json}")?;
+    out.flush()
+}
+
+/// One job as the worker sends it to its process.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct JobOrder {
     pub frame: PathBuf,
     pub image: String,
@@ -268,18 +262,32 @@ struct Progress;
 
 impl FrameObserver for Progress {
     fn tile_done(&self, done: usize, total: usize) {
-        say(&format!("tile {done} {total}"));
+        say(&ChildLine::Tile {
+            done: done as u32,
+            total: total as u32,
+        });
     }
 }
 
-fn say(line: &str) {
-    let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "{line}");
-    let _ = out.flush();
+fn say(line: &ChildLine) {
+    let _ = write_line(&mut std::io::stdout().lock(), line);
 }
 
-fn fail(code: &str, message: &str) {
-    say(&format!("error {code} {}", message.replace('\n', " ")));
+fn fail(code: ErrorCode, message: &str) {
+    say(&ChildLine::Error {
+        code,
+        message: message.to_string(),
+    });
+}
+
+/// The next message from the parent; None when stdin closed or the line is
+/// no message.
+fn hear() -> Option<ParentLine> {
+    let mut line = String::new();
+    match std::io::stdin().read_line(&mut line) {
+        Ok(0) | Err(_) => None,
+        Ok(_) => serde_json::from_str(&line).ok(),
+    }
 }
 
 /// The worker process: `gcp-tagger run-job`, one job per `job` line on
@@ -298,23 +306,20 @@ pub fn child_main(args: RunJobArgs) -> ExitCode {
     crate::pipeline::init_native();
     // PROJ objects are kept across the process's jobs.
     let mut transformer = Transformer::default();
-    let stdin = std::io::stdin();
     loop {
         let mut line = String::new();
-        match stdin.read_line(&mut line) {
+        match std::io::stdin().read_line(&mut line) {
             Ok(0) | Err(_) => return ExitCode::SUCCESS,
             Ok(_) => {}
         }
-        let Some(order) = line.strip_prefix("job ") else {
-            return ExitCode::from(3);
-        };
-        match serde_json::from_str::<JobOrder>(order) {
-            Ok(order) => {
+        match serde_json::from_str::<ParentLine>(&line) {
+            Ok(ParentLine::Job(order)) => {
                 if !run_one(&order, &mut transformer) {
                     return ExitCode::from(3);
                 }
             }
-            Err(e) => fail("internal", &format!("bad job order: {e}")),
+            Ok(ParentLine::Go { .. }) => return ExitCode::from(3),
+            Err(e) => fail(ErrorCode::Internal, &format!("bad job order: {e}")),
         }
         unlimit_self();
         // Hand the job's freed heap back to the system: glibc keeps it
@@ -345,11 +350,11 @@ fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
             named.replace(&file, &order.image)
         }
     };
-    let fail = |code: &str, message: &str| fail(code, &named(message));
+    let fail = |code: ErrorCode, message: &str| fail(code, &named(message));
     let options = match order.params.check() {
         Ok((_, options)) => options,
         Err(e) => {
-            fail("invalid_parameters", &e.to_string());
+            fail(ErrorCode::InvalidParameters, &e.to_string());
             return true;
         }
     };
@@ -362,44 +367,49 @@ fn run_one(order: &JobOrder, transformer: &mut Transformer) -> bool {
     };
     let header = frame.header().clone();
     let need = need_bytes(&header, &options, true);
-    say(&format!("header {} {} {need}", header.width, header.height));
-    let mut line = String::new();
-    if std::io::stdin().read_line(&mut line).unwrap_or(0) == 0 {
-        return false;
-    }
-    let mut go = line.split_whitespace();
-    let (Some("go"), Some(data), Some(cpu)) = (go.next(), go.next(), go.next()) else {
+    // Past u32 a frame is refused by the pixel limits the parent checks.
+    let dimension = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
+    say(&ChildLine::Header {
+        width: dimension(header.width),
+        height: dimension(header.height),
+        need,
+    });
+    let Some(ParentLine::Go {
+        data_limit,
+        cpu_secs,
+    }) = hear()
+    else {
         return false;
     };
-    if let (Ok(data), Ok(cpu)) = (data.parse::<u64>(), cpu.parse::<u64>()) {
-        limit_self(data, cpu);
-    }
+    limit_self(data_limit, cpu_secs);
     match detect_frame_pictured(frame, &order.image, &options, transformer, &Progress) {
         Ok((mut result, pictures)) => {
             for w in &mut result.warnings {
                 *w = named(w);
-                say(&format!("warning {}", w.replace('\n', " ")));
+                say(&ChildLine::Warning { message: w.clone() });
             }
             let bytes = serde_json::to_vec(&result).expect("results serialize");
             // Pictures first: a result on disk means its pictures are too.
             let written = write_pictures(&order.result.with_extension("pictures"), &pictures)
                 .and_then(|()| write_whole(&order.result, &bytes));
             match written {
-                Ok(()) => say(&format!(
-                    "done {} {} {}",
-                    result.targets.len(),
-                    result.width,
-                    result.height
-                )),
+                Ok(()) => say(&ChildLine::Done {
+                    targets: result.targets.len() as u32,
+                    width: dimension(result.width),
+                    height: dimension(result.height),
+                }),
                 Err(e) if is_disk_full(&e) => {
-                    fail(NO_SPACE, &format!("cannot store the result: {e}"))
+                    fail(ErrorCode::NoSpace, &format!("cannot store the result: {e}"))
                 }
-                Err(e) => fail("internal", &format!("cannot store the result: {e}")),
+                Err(e) => fail(
+                    ErrorCode::Internal,
+                    &format!("cannot store the result: {e}"),
+                ),
             }
         }
         Err(FrameError::Raster(e)) => fail(raster_code(&e), &e.to_string()),
-        Err(FrameError::TooLarge(e)) => fail("frame_too_large", &e.to_string()),
-        Err(e) => fail("detection_failed", &e.to_string()),
+        Err(FrameError::TooLarge(e)) => fail(ErrorCode::FrameTooLarge, &e.to_string()),
+        Err(e) => fail(ErrorCode::DetectionFailed, &e.to_string()),
     }
     true
 }
@@ -480,31 +490,63 @@ pub fn is_disk_full(e: &std::io::Error) -> bool {
         || e.kind() == std::io::ErrorKind::StorageFull
 }
 
-/// The code a worker process reports when the disk is full.
-pub const NO_SPACE: &str = "no_space";
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn child_lines_parse() {
-        assert_eq!(
-            ChildLine::parse("header 4000 3000 71303168"),
-            Some(ChildLine::Header {
+    fn every_message_reads_back_as_written_and_stray_output_is_no_message() {
+        let lines = [
+            ChildLine::Header {
                 width: 4000,
                 height: 3000,
-                need: 71303168
-            })
+                need: 71303168,
+            },
+            ChildLine::Tile { done: 3, total: 12 },
+            ChildLine::Done {
+                targets: 8,
+                width: 4000,
+                height: 3000,
+            },
+            ChildLine::Error {
+                code: ErrorCode::UnreadableFrame,
+                message: "cannot read: truncated JPEG\nat row 1200 of 3000".into(),
+            },
+            ChildLine::Warning {
+                message: "partial: rows 0-1199 of 3000".into(),
+            },
+        ];
+        for line in lines {
+            let mut out = Vec::new();
+            write_line(&mut out, &line).unwrap();
+            let text = String::from_utf8(out).unwrap();
+            assert_eq!(text.matches('\n').count(), 1, "one line: {text:?}");
+            assert_eq!(ChildLine::parse(text.trim_end()), Some(line));
+        }
+        assert_eq!(
+            ChildLine::parse(r#"{"kind":"error","code":"no_such_code","message":""}"#),
+            None
         );
         assert_eq!(
-            ChildLine::parse("error unreadable_frame cannot read: truncated JPEG"),
-            Some(ChildLine::Error {
-                code: "unreadable_frame".into(),
-                message: "cannot read: truncated JPEG".into()
-            })
+            ChildLine::parse(r#"{"kind":"tile","done":-1,"total":2}"#),
+            None
         );
-        assert_eq!(ChildLine::parse("tile 3"), None);
-        assert_eq!(ChildLine::parse("nonsense"), None);
+        assert_eq!(ChildLine::parse("ERROR 4: libtiff says hello"), None);
+        let mut out = Vec::new();
+        write_line(
+            &mut out,
+            &ParentLine::Go {
+                data_limit: 1 << 30,
+                cpu_secs: 84,
+            },
+        )
+        .unwrap();
+        assert!(matches!(
+            serde_json::from_slice::<ParentLine>(&out),
+            Ok(ParentLine::Go {
+                data_limit: 1073741824,
+                cpu_secs: 84
+            })
+        ));
     }
 }

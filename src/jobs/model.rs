@@ -1,5 +1,6 @@
 //! Job and flight records: what the store keeps and the API shows.
 
+use crate::error_code::ErrorCode;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
@@ -62,7 +63,7 @@ impl JobState {
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct JobError {
     /// Stable machine-readable code, e.g. `unreadable_frame`, `frame_too_large`.
-    pub code: String,
+    pub code: ErrorCode,
     pub message: String,
 }
 

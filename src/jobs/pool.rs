@@ -16,9 +16,10 @@ use crate::storage::header::PixelLimits;
 use crate::storage::DataDir;
 use crate::telemetry::{Metrics, OutcomeLabels};
 
-use super::isolate::{cpu_limit_secs, ChildLine, Heard, JobChild, JobOrder, NO_SPACE};
+use super::isolate::{cpu_limit_secs, ChildLine, Heard, JobChild, JobOrder};
 use super::model::{JobError, JobRecord};
 use super::store::{Claim, Outcome, Store};
+use crate::error_code::ErrorCode;
 
 /// How long an idle worker waits before re-checking the stop flag.
 const IDLE_WAIT: Duration = Duration::from_millis(250);
@@ -328,15 +329,8 @@ impl Worker {
     /// returns its outcome and the frame's megapixels.
     fn execute(&mut self, claim: &Claim) -> (Outcome, f64) {
         let job = &claim.job;
-        let fail = |code: &str, message: String| {
-            (
-                Outcome::Failed(JobError {
-                    code: code.into(),
-                    message,
-                }),
-                0.0,
-            )
-        };
+        let fail =
+            |code: ErrorCode, message: String| (Outcome::Failed(JobError { code, message }), 0.0);
         let frame = self.data.frame_path(job.id, &job.ext);
         let result = self.data.result_path(job.id);
         // The worker's process, kept from its last job, or a fresh one.
@@ -344,7 +338,12 @@ impl Worker {
             Some(child) => child,
             None => match JobChild::spawn() {
                 Ok(c) => c,
-                Err(e) => return fail("internal", format!("cannot start a worker process: {e}")),
+                Err(e) => {
+                    return fail(
+                        ErrorCode::Internal,
+                        format!("cannot start a worker process: {e}"),
+                    )
+                }
             },
         };
         let order = JobOrder {
@@ -358,7 +357,12 @@ impl Worker {
             tracing::warn!(error = %e, "the worker process is gone; starting another");
             child = match JobChild::spawn().and_then(|mut c| c.send(&order).map(|_| c)) {
                 Ok(c) => c,
-                Err(e) => return fail("internal", format!("cannot start a worker process: {e}")),
+                Err(e) => {
+                    return fail(
+                        ErrorCode::Internal,
+                        format!("cannot start a worker process: {e}"),
+                    )
+                }
             };
         }
         tracing::debug!(pid = child.pid(), "worker process started");
@@ -389,13 +393,13 @@ impl Worker {
                     need,
                 }) => {
                     if let Err(e) = self.pixels.admit(width, height, "opens as") {
-                        return fail("frame_too_large", e);
+                        return fail(ErrorCode::FrameTooLarge, e);
                     }
                     megapixels = width as f64 * height as f64 / 1e6;
                     self.store.progress(job.id, Some((width, height)), 0, 0);
                     match self.budget.acquire(need) {
                         Ok(p) => permit = Some(p),
-                        Err(e) => return fail("frame_too_large", e.to_string()),
+                        Err(e) => return fail(ErrorCode::FrameTooLarge, e.to_string()),
                     }
                     if self.stop_claiming.load(Ordering::SeqCst) {
                         // Shutting down: waiting for memory was the whole run.
@@ -429,13 +433,13 @@ impl Worker {
                 }
                 Some(ChildLine::Error { code, message }) => {
                     self.child = Some(child);
-                    if code == NO_SPACE {
+                    if code == ErrorCode::NoSpace {
                         // The server's disk, not the frame: the job goes
                         // back to the queue and waits for space.
                         tracing::warn!(%message, "the disk is full: the job goes back to the queue");
                         return (Outcome::Interrupted, 0.0);
                     }
-                    return fail(&code, message);
+                    return fail(code, message);
                 }
                 None => tracing::warn!(%line, "unexpected line from the worker process"),
             }
@@ -460,7 +464,7 @@ impl Worker {
         if job.attempts >= MAX_ATTEMPTS {
             return (
                 Outcome::Failed(JobError {
-                    code: "worker_crashed".into(),
+                    code: ErrorCode::WorkerCrashed,
                     message: format!(
                         "the worker process died on each of {} attempts (last: {end}); the frame is not retried",
                         job.attempts

@@ -658,7 +658,7 @@ impl Store {
         db.execute(
             "UPDATE jobs SET state = 'failed', finished_at = ?2, error_code = ?3, error_message = ?4
              WHERE id = ?1",
-            params![id.to_string(), now, error.code, error.message],
+            params![id.to_string(), now, error.code.as_str(), error.message],
         )?;
         state.fetching.remove(&(seq, id));
         let job = state.jobs.get_mut(&id).expect("job exists");
@@ -817,7 +817,7 @@ impl Store {
                 id.to_string(),
                 state_name.as_str(),
                 finished_at,
-                error.as_ref().map(|e| e.code.clone()),
+                error.as_ref().map(|e| e.code.as_str()),
                 error.as_ref().map(|e| e.message.clone()),
                 size.map(|s| s.0),
                 size.map(|s| s.1),
@@ -987,7 +987,7 @@ fn insert_jobs(
                 state.as_str(),
                 created,
                 finished,
-                error.as_ref().map(|e| e.code.clone()),
+                error.as_ref().map(|e| e.code.as_str()),
                 error.as_ref().map(|e| e.message.clone()),
                 source,
                 source_etag,
@@ -1132,7 +1132,15 @@ fn load(conn: &Connection) -> Result<State, StoreError> {
             r.get::<_, Option<String>>(11)?,
             r.get::<_, Option<String>>(12)?,
         ) {
-            (Some(code), Some(message)) => Some(JobError { code, message }),
+            (Some(code), Some(message)) => Some(JobError {
+                // A code this version no longer has (a store written by
+                // another) reads as ours, its text kept in the message.
+                code: code.parse().unwrap_or_else(|_| {
+                    tracing::warn!(%code, "a stored job error has an unknown code");
+                    crate::error_code::ErrorCode::Internal
+                }),
+                message,
+            }),
             _ => None,
         };
         records.push(JobRecord {
@@ -1213,7 +1221,7 @@ mod tests {
         assert_eq!(job.source_etag.as_deref(), Some("\"etag\""));
         assert!(store.fetched(a.id, "tif", 12).unwrap());
         let error = JobError {
-            code: "no_such_object".into(),
+            code: crate::error_code::ErrorCode::NoSuchObject,
             message: "gone".into(),
         };
         store.fetch_failed(b.id, &error).unwrap();

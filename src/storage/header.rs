@@ -4,6 +4,7 @@
 //! process, before any image library sees it. Reads are bounded: at most a
 //! few kilobytes from known offsets.
 
+use crate::error_code::ErrorCode;
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
@@ -51,10 +52,10 @@ pub enum HeaderError {
 
 impl HeaderError {
     /// The job error code.
-    pub fn code(&self) -> &'static str {
+    pub fn code(&self) -> ErrorCode {
         match self {
-            HeaderError::Unreadable(_) => "unreadable_frame",
-            HeaderError::TooLarge(_) => "frame_too_large",
+            HeaderError::Unreadable(_) => ErrorCode::UnreadableFrame,
+            HeaderError::TooLarge(_) => ErrorCode::FrameTooLarge,
         }
     }
 }
@@ -179,7 +180,7 @@ mod tests {
             max_side: 60_000,
         };
         let e = check(f.path(), limits).unwrap_err();
-        assert_eq!(e.code(), "frame_too_large");
+        assert_eq!(e.code(), ErrorCode::FrameTooLarge);
         assert!(e.to_string().contains("100000 x 100000"), "{e}");
 
         // JPEG: APP0 then SOF0 with 3000 rows of 4000 columns.
@@ -205,7 +206,7 @@ mod tests {
         twice.extend_from_slice(&[1, 1, 4, 0, 1, 0, 0, 0, 0x30, 0x75, 0, 0]);
         twice.extend_from_slice(&[0, 1, 3, 0, 1, 0, 0, 0, 100, 0, 0, 0]);
         let e = check(file(&twice).path(), limits).unwrap_err();
-        assert_eq!(e.code(), "unreadable_frame");
+        assert_eq!(e.code(), ErrorCode::UnreadableFrame);
         assert!(
             e.to_string()
                 .contains("two ImageWidth entries (30000 and 100)"),

@@ -11,6 +11,7 @@
 //! carry a host or a path into the request) and, when configured, an
 //! allow-list.
 
+use crate::error_code::ErrorCode;
 use std::collections::HashMap;
 use std::path::Path as FsPath;
 use std::sync::{Arc, Mutex};
@@ -75,19 +76,19 @@ pub enum S3Error {
 }
 
 impl S3Error {
-    pub fn code(&self) -> &'static str {
+    pub fn code(&self) -> ErrorCode {
         match self {
-            S3Error::BadUrl(_) => "invalid_source",
-            S3Error::BucketNotAllowed(_) => "bucket_not_allowed",
-            S3Error::NoSuchBucket(_) => "no_such_bucket",
-            S3Error::NotFound(_) => "no_such_object",
-            S3Error::EmptyPrefix(_) => "empty_prefix",
-            S3Error::AccessDenied(..) => "s3_access_denied",
-            S3Error::Changed(_) => "object_changed",
-            S3Error::Integrity(..) => "integrity_check_failed",
-            S3Error::TooLarge { .. } => "frame_too_large",
-            S3Error::Unavailable(..) => "s3_unavailable",
-            S3Error::Spool(..) => "internal",
+            S3Error::BadUrl(_) => ErrorCode::InvalidSource,
+            S3Error::BucketNotAllowed(_) => ErrorCode::BucketNotAllowed,
+            S3Error::NoSuchBucket(_) => ErrorCode::NoSuchBucket,
+            S3Error::NotFound(_) => ErrorCode::NoSuchObject,
+            S3Error::EmptyPrefix(_) => ErrorCode::EmptyPrefix,
+            S3Error::AccessDenied(..) => ErrorCode::S3AccessDenied,
+            S3Error::Changed(_) => ErrorCode::ObjectChanged,
+            S3Error::Integrity(..) => ErrorCode::IntegrityCheckFailed,
+            S3Error::TooLarge { .. } => ErrorCode::FrameTooLarge,
+            S3Error::Unavailable(..) => ErrorCode::S3Unavailable,
+            S3Error::Spool(..) => ErrorCode::Internal,
         }
     }
 }

@@ -1,6 +1,6 @@
 //! Property tests (proptest) of the parsers the service owns, over random
 //! and mutated input: none may panic, and what they accept keeps their
-//! invariants. Case counts are in the README.
+//! invariants. Case counts are in docs/operations.md.
 
 use gcp_tagger::jobs::isolate::ChildLine;
 use gcp_tagger::jobs::params::PARAM_KEYS;
@@ -51,8 +51,14 @@ proptest! {
     }
 
     #[test]
-    fn worker_lines_never_panic(line in "(header|tile|done|error)? ?[0-9a-z _-]{0,40}") {
-        let _ = ChildLine::parse(&line);
+    fn worker_lines_never_panic(
+        line in r#"\{("kind":"(header|tile|done|error|warning)",?)?("[a-z_]{1,8}":(-?[0-9]{1,12}|"[a-z_ ]{0,12}"),?){0,4}\}?"#
+    ) {
+        // Whatever parses writes back to a line that parses the same.
+        if let Some(parsed) = ChildLine::parse(&line) {
+            let again = serde_json::to_string(&parsed).unwrap();
+            prop_assert_eq!(ChildLine::parse(&again), Some(parsed));
+        }
     }
 
     #[test]

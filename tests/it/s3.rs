@@ -341,7 +341,7 @@ fn single_objects_and_sources_that_cannot_work_get_clear_answers() {
             flights,
             json!({"sources": ["s3://flights/f/"], "results_to": "s3://flights/out.csv"}),
         ),
-        400,
+        422,
         "invalid_source",
     );
     assert_eq!(v["field"], "results_to");

@@ -326,21 +326,20 @@ fn frame_larger_than_the_budget_is_refused_with_numbers() {
     );
 }
 
-/// The README's production section documents every `serve` flag with its
+/// The configuration reference documents every `serve` flag with its
 /// environment variable, checked against `serve --help` itself.
 #[test]
-fn the_readme_configuration_reference_matches_serve_help() {
+fn the_configuration_reference_matches_serve_help() {
     let help = std::process::Command::new(env!("CARGO_BIN_EXE_gcp-tagger"))
         .args(["serve", "--help"])
         .output()
         .expect("serve --help");
     let help = String::from_utf8(help.stdout).unwrap();
-    let readme =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
-    let section = readme
-        .split("## Production")
-        .nth(1)
-        .expect("README has a Production section");
+    let section = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/docs/configuration.md"
+    ))
+    .unwrap();
     let mut flags = 0;
     for line in help.lines().map(str::trim) {
         let Some(flag) = line
@@ -355,7 +354,7 @@ fn the_readme_configuration_reference_matches_serve_help() {
         flags += 1;
         assert!(
             section.contains(&format!("`--{flag}`")),
-            "README lacks --{flag}"
+            "docs/configuration.md lacks --{flag}"
         );
     }
     let mut vars = 0;
@@ -365,7 +364,10 @@ fn the_readme_configuration_reference_matches_serve_help() {
         .map(|s| s.split(['=', ']']).next().unwrap())
     {
         vars += 1;
-        assert!(section.contains(&format!("`{var}`")), "README lacks {var}");
+        assert!(
+            section.contains(&format!("`{var}`")),
+            "docs/configuration.md lacks {var}"
+        );
     }
     assert!(flags >= 12 && vars >= 12, "{flags} flags, {vars} variables");
 }

@@ -11,12 +11,11 @@ use uuid::Uuid;
 use super::error::{ApiError, Problem};
 use super::extract::{ApiQuery, IdPath};
 use super::idempotency::{self, Answer};
-use super::jobs::UploadQuery;
 use super::sources::{self, SourceRequest};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{results, watch, AppState};
-use crate::jobs::params::PARAM_KEYS;
+use crate::jobs::params::{DetectionQuery, PARAM_KEYS};
 use crate::jobs::review::Selection;
 use crate::jobs::{FlightRecord, FlightState, IdemKey, JobParams, JobRecord};
 use crate::pipeline::output::Format;
@@ -86,7 +85,7 @@ pub struct FlightUpload {
 /// credentials fail the request.
 #[utoipa::path(
     post, path = "/v1/flights", tag = "flights",
-    params(UploadQuery,
+    params(DetectionQuery,
         ("Idempotency-Key" = Option<String>, Header, description = "Retry-safe submission: a repeated key answers with the first request's flight and creates nothing"),
         ("results_to" = Option<String>, Query, description = "Multipart uploads: `s3://bucket/prefix/` to write the results to when the flight finishes")),
     request_body(content(

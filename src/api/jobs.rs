@@ -14,46 +14,11 @@ use super::sources::{self, SourceRequest};
 use super::upload::{self, Expect, Target};
 use super::views::*;
 use super::{flights::checked_params, results, watch, AppState};
+use crate::jobs::params::DetectionQuery;
 use crate::jobs::review::Selection;
 use crate::jobs::IdemKey;
 use crate::jobs::{JobFilter, JobRecord, JobState};
 use crate::pipeline::output::Format;
-
-/// Query of a single-frame upload: the detection parameters, plus the
-/// frame's name for raw bodies.
-#[derive(Debug, serde::Deserialize, utoipa::IntoParams)]
-#[into_params(parameter_in = Query)]
-#[allow(dead_code)] // documents the query; parsed by `JobParams::from_pairs`
-pub struct UploadQuery {
-    /// Name of the frame in results (raw bodies; multipart parts carry their file name).
-    name: Option<String>,
-    /// Target types, comma separated: `apriltag`, `aruco`, `crosshair`, `circle` (default `apriltag`).
-    marker_types: Option<String>,
-    /// ArUco dictionary, e.g. `4X4_50` (default), `5X5_100`, `ARUCO_ORIGINAL`.
-    dictionary: Option<String>,
-    /// AprilTag family: `16h5`, `25h9`, `36h10`, `36h11` (default),
-    /// `Standard41h12`, `Circle21h7`, `Custom48h12`.
-    apriltag_family: Option<String>,
-    /// CRS of world coordinates: `EPSG:n`, WKT, PROJJSON or PROJ string (default `EPSG:4326`).
-    crs: Option<String>,
-    /// Survey matching: farthest a detection may lie from its point's expected position, in pixels (default 20).
-    pixel_tolerance: Option<f64>,
-    /// Largest subpixel corner move accepted, in pixels (default: 0.6 of a marker cell, at least 1.5 px).
-    max_refine_shift_px: Option<f64>,
-    /// Tile side in pixels, 256..=8192 (default 1024 for coded targets only,
-    /// 2048 when printed targets are searched).
-    tile_size: Option<usize>,
-    /// Largest target side in pixels (default 200).
-    max_target_px: Option<usize>,
-    /// Smallest target side in pixels (default 16).
-    min_target_px: Option<f64>,
-    /// Printed targets' physical size in metres (square side, outer diameter); with the GSD it narrows the size range.
-    target_size_m: Option<f64>,
-    /// Expected ground sample distance in cm per pixel (default: from the frame's georeference).
-    gsd_cm: Option<f64>,
-    /// A printed target's design: a preset name (`cross`, `checker`, `bullseye`, `bullseye-5`, `disc-black`, `disc-white`) or the design as JSON text.
-    target_design: Option<String>,
-}
 
 /// A frame as a multipart part.
 #[derive(utoipa::ToSchema)]
@@ -70,7 +35,8 @@ pub struct FrameUpload {
 /// The job belongs to a new flight of one frame.
 #[utoipa::path(
     post, path = "/v1/jobs", tag = "jobs",
-    params(UploadQuery,
+    params(DetectionQuery,
+        ("name" = Option<String>, Query, description = "Name of the frame in results (raw bodies; multipart parts carry their file name)."),
         ("Idempotency-Key" = Option<String>, Header, description = "Retry-safe submission: a repeated key answers with the first request's job and creates nothing")),
     request_body(content(
         (FrameUpload = "multipart/form-data"),

@@ -78,67 +78,142 @@ impl Default for JobParams {
     }
 }
 
-/// The query keys that are detection parameters.
-pub const PARAM_KEYS: &[&str] = &[
-    "marker_types",
-    "dictionary",
-    "apriltag_family",
-    "crs",
-    "pixel_tolerance",
-    "max_refine_shift_px",
-    "tile_size",
-    "max_target_px",
-    "min_target_px",
-    "target_size_m",
-    "gsd_cm",
-    "target_design",
-];
+/// The detection parameters as a request's query gives them: this one type
+/// is both what the API documents (OpenAPI, `IntoParams`) and what
+/// [`DetectionQuery::from_pairs`] fills; a field absent takes
+/// [`JobParams`]'s default.
+#[derive(Debug, Clone, Default, PartialEq, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct DetectionQuery {
+    /// Target types, comma separated: `apriltag`, `aruco`, `crosshair`, `circle` (default `apriltag`).
+    pub marker_types: Option<String>,
+    /// ArUco dictionary, e.g. `4X4_50` (default), `5X5_100`, `ARUCO_ORIGINAL`.
+    pub dictionary: Option<String>,
+    /// AprilTag family: `16h5`, `25h9`, `36h10`, `36h11` (default),
+    /// `Standard41h12`, `Circle21h7`, `Custom48h12`.
+    pub apriltag_family: Option<String>,
+    /// CRS of world coordinates: `EPSG:n`, WKT, PROJJSON or PROJ string (default `EPSG:4326`).
+    pub crs: Option<String>,
+    /// Survey matching: farthest a detection may lie from its point's expected position, in pixels (default 20).
+    pub pixel_tolerance: Option<f64>,
+    /// Largest subpixel corner move accepted, in pixels (default: 0.6 of a marker cell, at least 1.5 px).
+    pub max_refine_shift_px: Option<f64>,
+    /// Tile side in pixels, 256..=8192 (default 1024 for coded targets only,
+    /// 2048 when printed targets are searched).
+    pub tile_size: Option<usize>,
+    /// Largest target side in pixels (default 200).
+    pub max_target_px: Option<usize>,
+    /// Smallest target side in pixels (default 16).
+    pub min_target_px: Option<f64>,
+    /// Printed targets' physical size in metres (square side, outer diameter); with the GSD it narrows the size range.
+    pub target_size_m: Option<f64>,
+    /// Expected ground sample distance in cm per pixel (default: from the frame's georeference).
+    pub gsd_cm: Option<f64>,
+    /// A printed target's design: a preset name (`cross`, `checker`, `bullseye`, `bullseye-5`, `disc-black`, `disc-white`) or the design as JSON text.
+    pub target_design: Option<String>,
+}
+
+/// A query value of one of [`DetectionQuery`]'s field types.
+trait QueryValue: Sized {
+    fn parse_as(field: &'static str, value: &str) -> Result<Self, InvalidSetting>;
+}
+
+impl QueryValue for String {
+    fn parse_as(_: &'static str, value: &str) -> Result<String, InvalidSetting> {
+        Ok(value.to_string())
+    }
+}
+
+impl QueryValue for f64 {
+    fn parse_as(field: &'static str, value: &str) -> Result<f64, InvalidSetting> {
+        value
+            .parse()
+            .map_err(|_| invalid(field, format!("{value:?} is not a number")))
+    }
+}
+
+impl QueryValue for usize {
+    fn parse_as(field: &'static str, value: &str) -> Result<usize, InvalidSetting> {
+        value
+            .parse()
+            .map_err(|_| invalid(field, format!("{value:?} is not an integer")))
+    }
+}
+
+/// [`PARAM_KEYS`] and [`DetectionQuery::from_pairs`] from the list of the
+/// query's fields. The struct literal in `from_pairs` names every field, so
+/// a field added to the struct and not here does not compile.
+macro_rules! query_fields {
+    ($($field:ident),+ $(,)?) => {
+        /// The query keys that are detection parameters.
+        pub const PARAM_KEYS: &[&str] = &[$(stringify!($field)),+];
+
+        impl DetectionQuery {
+            /// The parameters among `key=value` pairs (other keys are the
+            /// caller's); a repeated key or a value of the wrong type is an
+            /// error naming it.
+            pub fn from_pairs<'a>(
+                pairs: impl IntoIterator<Item = (&'a str, &'a str)>,
+            ) -> Result<DetectionQuery, InvalidSetting> {
+                let mut q = DetectionQuery { $($field: None),+ };
+                for (key, value) in pairs {
+                    $(
+                        if key == stringify!($field) {
+                            if q.$field.is_some() {
+                                return Err(invalid(stringify!($field), "given more than once".into()));
+                            }
+                            q.$field = Some(QueryValue::parse_as(stringify!($field), value)?);
+                            continue;
+                        }
+                    )+
+                }
+                Ok(q)
+            }
+        }
+    };
+}
+
+query_fields!(
+    marker_types,
+    dictionary,
+    apriltag_family,
+    crs,
+    pixel_tolerance,
+    max_refine_shift_px,
+    tile_size,
+    max_target_px,
+    min_target_px,
+    target_size_m,
+    gsd_cm,
+    target_design,
+);
 
 impl JobParams {
-    /// Builds parameters from `key=value` pairs over the defaults; a key
-    /// that is not a parameter, a repeated key or a value of the wrong type
-    /// is an error naming it. Call [`JobParams::check`] afterwards.
+    /// Builds parameters from `key=value` pairs over the defaults (see
+    /// [`DetectionQuery::from_pairs`]). Call [`JobParams::check`] afterwards.
     pub fn from_pairs<'a>(
         pairs: impl IntoIterator<Item = (&'a str, &'a str)>,
     ) -> Result<JobParams, InvalidSetting> {
-        let mut p = JobParams::default();
-        let mut seen: Vec<&str> = Vec::new();
-        for (key, value) in pairs {
-            let Some(&field) = PARAM_KEYS.iter().find(|k| **k == key) else {
-                continue;
-            };
-            if seen.contains(&field) {
-                return Err(invalid(field, "given more than once".into()));
-            }
-            seen.push(field);
-            let number = |what: &str| invalid(field, format!("{value:?} is not {what}"));
-            match field {
-                "marker_types" => p.marker_types = value.to_string(),
-                "dictionary" => p.dictionary = value.to_string(),
-                "apriltag_family" => p.apriltag_family = value.to_string(),
-                "crs" => p.crs = value.to_string(),
-                "pixel_tolerance" => {
-                    p.pixel_tolerance = Some(value.parse().map_err(|_| number("a number"))?)
-                }
-                "max_refine_shift_px" => {
-                    p.max_refine_shift_px = Some(value.parse().map_err(|_| number("a number"))?)
-                }
-                "tile_size" => p.tile_size = Some(value.parse().map_err(|_| number("an integer"))?),
-                "max_target_px" => {
-                    p.max_target_px = value.parse().map_err(|_| number("an integer"))?
-                }
-                "min_target_px" => {
-                    p.min_target_px = value.parse().map_err(|_| number("a number"))?
-                }
-                "target_size_m" => {
-                    p.target_size_m = Some(value.parse().map_err(|_| number("a number"))?)
-                }
-                "gsd_cm" => p.gsd_cm = Some(value.parse().map_err(|_| number("a number"))?),
-                "target_design" => p.target_design = Some(value.to_string()),
-                _ => unreachable!("every key in PARAM_KEYS is handled"),
-            }
+        Ok(JobParams::from_query(DetectionQuery::from_pairs(pairs)?))
+    }
+
+    /// The query's parameters over the defaults.
+    pub fn from_query(q: DetectionQuery) -> JobParams {
+        let d = JobParams::default();
+        JobParams {
+            marker_types: q.marker_types.unwrap_or(d.marker_types),
+            dictionary: q.dictionary.unwrap_or(d.dictionary),
+            apriltag_family: q.apriltag_family.unwrap_or(d.apriltag_family),
+            crs: q.crs.unwrap_or(d.crs),
+            pixel_tolerance: q.pixel_tolerance.or(d.pixel_tolerance),
+            max_refine_shift_px: q.max_refine_shift_px.or(d.max_refine_shift_px),
+            tile_size: q.tile_size.or(d.tile_size),
+            max_target_px: q.max_target_px.unwrap_or(d.max_target_px),
+            min_target_px: q.min_target_px.unwrap_or(d.min_target_px),
+            target_size_m: q.target_size_m.or(d.target_size_m),
+            gsd_cm: q.gsd_cm.or(d.gsd_cm),
+            target_design: q.target_design.or(d.target_design),
         }
-        Ok(p)
     }
 
     /// Validates every field (the CRS through PROJ, so call it off the async
@@ -237,6 +312,28 @@ fn invalid(field: &'static str, message: String) -> InvalidSetting {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_documented_query_is_the_parsed_one() {
+        use utoipa::IntoParams;
+        let documented: Vec<String> = DetectionQuery::into_params(|| None)
+            .into_iter()
+            .map(|p| p.name)
+            .collect();
+        assert_eq!(documented, PARAM_KEYS);
+        let q = DetectionQuery::from_pairs([
+            ("tile_size", "512"),
+            ("crs", "EPSG:32611"),
+            ("wait", "3"),
+        ])
+        .unwrap();
+        assert_eq!(q.tile_size, Some(512));
+        assert_eq!(q.crs.as_deref(), Some("EPSG:32611"));
+        let e = DetectionQuery::from_pairs([("gsd_cm", "two")]).unwrap_err();
+        assert_eq!(e.field, "gsd_cm");
+        let e = DetectionQuery::from_pairs([("crs", "a"), ("crs", "b")]).unwrap_err();
+        assert!(e.message.contains("more than once"), "{}", e.message);
+    }
 
     #[test]
     fn pairs_override_defaults_and_name_the_bad_field() {

@@ -393,7 +393,7 @@ impl Worker {
                     need,
                 }) => {
                     if let Err(e) = self.pixels.admit(width, height, "opens as") {
-                        return fail(ErrorCode::FrameTooLarge, e);
+                        return fail(ErrorCode::FrameTooLarge, e.to_string());
                     }
                     megapixels = width as f64 * height as f64 / 1e6;
                     self.store.progress(job.id, Some((width, height)), 0, 0);

@@ -101,12 +101,21 @@ pub struct TiffEntry {
     pub value: u64,
 }
 
+/// Why a TIFF's first directory cannot be read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum IfdError {
+    #[error("the TIFF header is cut short")]
+    Cut,
+    #[error("not a TIFF")]
+    NotTiff,
+}
+
 /// The entries of a TIFF's or BigTIFF's first image file directory, read
 /// with bounded reads from known offsets (at most 4096 entries). `head` is
 /// the file's first 16 bytes.
-pub fn first_ifd(f: &mut File, head: &[u8]) -> Result<Vec<TiffEntry>, String> {
+pub fn first_ifd(f: &mut File, head: &[u8]) -> Result<Vec<TiffEntry>, IfdError> {
     if head.len() < 16 {
-        return Err("the TIFF header is cut short".into());
+        return Err(IfdError::Cut);
     }
     let le = head[0] == b'I';
     let u16_at = |b: &[u8]| {
@@ -133,11 +142,11 @@ pub fn first_ifd(f: &mut File, head: &[u8]) -> Result<Vec<TiffEntry>, String> {
             u64::from_be_bytes(a)
         }
     };
-    let cut = || "the header is cut short".to_string();
+    let cut = || IfdError::Cut;
     let big = match u16_at(&head[2..4]) {
         42 => false,
         43 => true,
-        _ => return Err("not a TIFF".into()),
+        _ => return Err(IfdError::NotTiff),
     };
     let (ifd, count_len, entry_len, inline) = if big {
         (u64_at(&head[8..16]), 8u64, 20u64, 8u64)

@@ -9,7 +9,7 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
-use crate::pipeline::layout::first_ifd;
+use crate::pipeline::layout::{first_ifd, IfdError};
 
 /// Limits on what a frame may claim.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -18,15 +18,60 @@ pub struct PixelLimits {
     pub max_side: u32,
 }
 
+/// Why a frame's header cannot be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Unreadable {
+    #[error("{0}")]
+    Io(String),
+    #[error("PNG without an IHDR header")]
+    PngWithoutIhdr,
+    #[error("the header is cut short")]
+    Cut,
+    #[error("broken JPEG marker")]
+    JpegMarker,
+    #[error("broken JPEG segment")]
+    JpegSegment,
+    #[error("no JPEG frame header in the first 64 segments")]
+    NoJpegFrame,
+    #[error(transparent)]
+    Tiff(#[from] IfdError),
+    #[error("the TIFF's first image has two {name} entries ({first} and {second})")]
+    TiffRepeated {
+        name: &'static str,
+        first: u32,
+        second: u32,
+    },
+    #[error("the TIFF's first image has no width or height")]
+    TiffNoSize,
+    #[error("not a JPEG, PNG or TIFF")]
+    Unknown,
+}
+
+/// A frame claims more than the limits: what it `does` ("claims", "opens
+/// as") and both figures.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the frame {does} {width} x {height} pixels ({:.0} MP); the limits are {max_side} px a side and {:.0} MP",
+    *width as f64 * *height as f64 / 1e6,
+    *max_pixels as f64 / 1e6
+)]
+pub struct TooLarge {
+    pub does: &'static str,
+    pub width: u32,
+    pub height: u32,
+    pub max_side: u32,
+    pub max_pixels: u64,
+}
+
 /// A frame's claimed size, or why it cannot be read.
-pub fn dimensions(path: &Path) -> Result<(u32, u32), String> {
-    let mut f = File::open(path).map_err(|e| e.to_string())?;
+pub fn dimensions(path: &Path) -> Result<(u32, u32), Unreadable> {
+    let mut f = File::open(path).map_err(|e| Unreadable::Io(e.to_string()))?;
     let mut head = [0u8; 32];
     let n = read_up_to(&mut f, &mut head)?;
     let head = &head[..n];
     if head.starts_with(b"\x89PNG\r\n\x1a\n") {
         if n < 24 || &head[12..16] != b"IHDR" {
-            return Err("PNG without an IHDR header".into());
+            return Err(Unreadable::PngWithoutIhdr);
         }
         let w = u32::from_be_bytes(head[16..20].try_into().expect("4 bytes"));
         let h = u32::from_be_bytes(head[20..24].try_into().expect("4 bytes"));
@@ -38,16 +83,16 @@ pub fn dimensions(path: &Path) -> Result<(u32, u32), String> {
     if head.starts_with(b"II") || head.starts_with(b"MM") {
         return tiff(&mut f, head);
     }
-    Err("not a JPEG, PNG or TIFF".into())
+    Err(Unreadable::Unknown)
 }
 
 /// Why a frame's header is refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum HeaderError {
     #[error("unreadable header: {0}")]
-    Unreadable(String),
-    #[error("{0}")]
-    TooLarge(String),
+    Unreadable(#[from] Unreadable),
+    #[error(transparent)]
+    TooLarge(#[from] TooLarge),
 }
 
 impl HeaderError {
@@ -63,15 +108,16 @@ impl HeaderError {
 impl PixelLimits {
     /// Whether a frame of `w` x `h` pixels is within the limits; the error
     /// says what the frame `does` ("claims", "opens as") and both figures.
-    pub fn admit(&self, w: u32, h: u32, does: &str) -> Result<(), String> {
+    pub fn admit(&self, w: u32, h: u32, does: &'static str) -> Result<(), TooLarge> {
         let pixels = w as u64 * h as u64;
         if w > self.max_side || h > self.max_side || pixels > self.max_pixels {
-            return Err(format!(
-                "the frame {does} {w} x {h} pixels ({:.0} MP); the limits are {} px a side and {:.0} MP",
-                pixels as f64 / 1e6,
-                self.max_side,
-                self.max_pixels as f64 / 1e6
-            ));
+            return Err(TooLarge {
+                does,
+                width: w,
+                height: h,
+                max_side: self.max_side,
+                max_pixels: self.max_pixels,
+            });
         }
         Ok(())
     }
@@ -79,40 +125,38 @@ impl PixelLimits {
 
 /// Checks a frame's claimed size against `limits`; the error names both.
 pub fn check(path: &Path, limits: PixelLimits) -> Result<(u32, u32), HeaderError> {
-    let (w, h) = dimensions(path).map_err(HeaderError::Unreadable)?;
-    limits
-        .admit(w, h, "claims")
-        .map_err(HeaderError::TooLarge)?;
+    let (w, h) = dimensions(path)?;
+    limits.admit(w, h, "claims")?;
     Ok((w, h))
 }
 
-fn read_up_to(f: &mut File, buf: &mut [u8]) -> Result<usize, String> {
+fn read_up_to(f: &mut File, buf: &mut [u8]) -> Result<usize, Unreadable> {
     let mut n = 0;
     while n < buf.len() {
         match f.read(&mut buf[n..]) {
             Ok(0) => break,
             Ok(k) => n += k,
-            Err(e) => return Err(e.to_string()),
+            Err(e) => return Err(Unreadable::Io(e.to_string())),
         }
     }
     Ok(n)
 }
 
-fn read_exact_at(f: &mut File, at: u64, buf: &mut [u8]) -> Result<(), String> {
-    f.seek(SeekFrom::Start(at)).map_err(|e| e.to_string())?;
-    f.read_exact(buf)
-        .map_err(|_| "the header is cut short".to_string())
+fn read_exact_at(f: &mut File, at: u64, buf: &mut [u8]) -> Result<(), Unreadable> {
+    f.seek(SeekFrom::Start(at))
+        .map_err(|e| Unreadable::Io(e.to_string()))?;
+    f.read_exact(buf).map_err(|_| Unreadable::Cut)
 }
 
 /// Walks JPEG segments to the first start-of-frame marker (at most 64
 /// segments, so a file of empty segments cannot keep us reading).
-fn jpeg(f: &mut File) -> Result<(u32, u32), String> {
+fn jpeg(f: &mut File) -> Result<(u32, u32), Unreadable> {
     let mut at = 2u64;
     for _ in 0..64 {
         let mut m = [0u8; 4];
         read_exact_at(f, at, &mut m)?;
         if m[0] != 0xFF {
-            return Err("broken JPEG marker".into());
+            return Err(Unreadable::JpegMarker);
         }
         let marker = m[1];
         let len = u16::from_be_bytes([m[2], m[3]]) as u64;
@@ -125,15 +169,15 @@ fn jpeg(f: &mut File) -> Result<(u32, u32), String> {
             return Ok((w, h));
         }
         if len < 2 {
-            return Err("broken JPEG segment".into());
+            return Err(Unreadable::JpegSegment);
         }
         at += 2 + len;
     }
-    Err("no JPEG frame header in the first 64 segments".into())
+    Err(Unreadable::NoJpegFrame)
 }
 
 /// ImageWidth (256) and ImageLength (257) of a TIFF's or BigTIFF's first IFD.
-fn tiff(f: &mut File, head: &[u8]) -> Result<(u32, u32), String> {
+fn tiff(f: &mut File, head: &[u8]) -> Result<(u32, u32), Unreadable> {
     let (mut w, mut h) = (None, None);
     for e in first_ifd(f, head)? {
         let v = u32::try_from(e.value).unwrap_or(u32::MAX);
@@ -146,15 +190,17 @@ fn tiff(f: &mut File, head: &[u8]) -> Result<(u32, u32), String> {
         // first, others the last): a size check on one would let the
         // other through.
         if let Some(first) = *slot {
-            return Err(format!(
-                "the TIFF's first image has two {name} entries ({first} and {v})"
-            ));
+            return Err(Unreadable::TiffRepeated {
+                name,
+                first,
+                second: v,
+            });
         }
         *slot = Some(v);
     }
     match (w, h) {
         (Some(w), Some(h)) => Ok((w, h)),
-        _ => Err("the TIFF's first image has no width or height".into()),
+        _ => Err(Unreadable::TiffNoSize),
     }
 }
 

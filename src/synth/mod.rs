@@ -16,8 +16,8 @@ use std::path::Path;
 use std::str::FromStr;
 
 pub use exif::{write_drone_meta, DroneMeta};
-pub use printed::{Marking, PrintedDesign, PrintedSpec};
-pub use render::{render, Clutter, GreyImage, MarkerSpec, Scene, Truth};
+pub use printed::{Lookalike, LookalikeKind, Marking, PrintedDesign, PrintedSpec};
+pub use render::{render, render_with_lookalikes, Clutter, GreyImage, MarkerSpec, Scene, Truth};
 pub use write::{write_image, GeoSpec, SampleFormat};
 
 use crate::pipeline::detect::{AprilTagFamily, MarkerType};

@@ -169,8 +169,37 @@ fn local_shadow(img: &mut GreyImage, center: Pt, angle: f64, offset: f64, radius
     });
 }
 
+/// What a look-alike is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LookalikeKind {
+    PanelGrid,
+    Paving,
+    RoadCross,
+    Manhole,
+    PyramidRoof,
+    TankOnRoof,
+    Car,
+}
+
+/// A look-alike painted into a scene: its kind, centre and the radius of a
+/// circle around everything it painted (pixels). Objects painted later may
+/// hide parts of it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lookalike {
+    pub kind: LookalikeKind,
+    pub center: (f64, f64),
+    pub radius: f64,
+}
+
+impl Lookalike {
+    /// Whether the look-alike's extent covers `p`.
+    pub fn covers(&self, p: (f64, f64)) -> bool {
+        (p.0 - self.center.0).hypot(p.1 - self.center.1) <= self.radius
+    }
+}
+
 /// Paints one random look-alike of a printed target.
-pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
+pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) -> Lookalike {
     let (w, h) = (img.width as f64, img.height as f64);
     let c = (rng.range(0.0, w), rng.range(0.0, h));
     let angle = rng.range(0.0, PI);
@@ -180,7 +209,7 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
         let (dx, dy) = (x - c.0, y - c.1);
         (co * dx + s * dy, -s * dx + co * dy)
     };
-    match (rng.uniform() * 7.0) as usize {
+    let (kind, radius) = match (rng.uniform() * 7.0) as usize {
         0 => {
             // Solar-panel array: dark cells in a light frame, a grid whose
             // every inner crossing looks like a cross target.
@@ -205,6 +234,7 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
                     || fv > cell - line / 2.0;
                 Some(if on_line { 0.8 } else { 0.12 })
             });
+            (LookalikeKind::PanelGrid, r)
         }
         1 => {
             // Paving in a checker pattern: every inner corner is a saddle.
@@ -221,6 +251,7 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
                 let (i, j) = (((u + half) / tile) as usize, ((v + half) / tile) as usize);
                 Some(if (i + j) % 2 == 0 { a } else { b })
             });
+            (LookalikeKind::Paving, r)
         }
         2 => {
             // Road-marking cross: long white bars on a wide asphalt patch.
@@ -237,6 +268,7 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
                     || (v.abs() < width / 2.0 && u.abs() < arm);
                 Some(if bar { 0.85 } else { 0.13 })
             });
+            (LookalikeKind::RoadCross, r)
         }
         3 => {
             // Manhole: dark cover inside a light rim.
@@ -246,6 +278,7 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
                 let d = (x - c.0).hypot(y - c.1);
                 (d <= rim).then_some(if d < radius { 0.12 } else { 0.62 })
             });
+            (LookalikeKind::Manhole, rim)
         }
         4 => {
             // Pyramid roof: four triangular faces lit by a low sun.
@@ -272,6 +305,7 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
                 };
                 Some((0.45 + 0.35 * (face + angle - sun).cos()) as f32)
             });
+            (LookalikeKind::PyramidRoof, r)
         }
         5 => {
             // Round tank on a square flat roof, off the roof's centre.
@@ -287,6 +321,7 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
                 let tank = (u - off).hypot(v - off * 0.5) < radius;
                 Some(if tank { 0.85 } else { 0.2 })
             });
+            (LookalikeKind::TankOnRoof, r)
         }
         _ => {
             // Car: body with dark windscreen and rear window.
@@ -303,6 +338,12 @@ pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) {
                     && ((u - len * 0.12).abs() < len * 0.08 || (u + len * 0.25).abs() < len * 0.06);
                 Some(if glass { 0.08 } else { body })
             });
+            (LookalikeKind::Car, r)
         }
+    };
+    Lookalike {
+        kind,
+        center: c,
+        radius,
     }
 }

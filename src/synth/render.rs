@@ -1,5 +1,6 @@
 //! Scene rendering on a float grey canvas (0 = black, 1 = white).
 
+use super::printed::Lookalike;
 use crate::pipeline::detect::geometry::{self, Pt};
 use crate::pipeline::detect::{marker_bits, MarkerType};
 
@@ -105,6 +106,14 @@ pub struct Truth {
 
 /// Renders `scene`; returns the image and the markers' truth.
 pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
+    render_with_lookalikes(scene).map(|(img, truths, _)| (img, truths))
+}
+
+/// [`render`], and the look-alikes painted (tests that no detection comes
+/// from a look-alike first check that it is in the frame).
+pub fn render_with_lookalikes(
+    scene: &Scene,
+) -> Result<(GreyImage, Vec<Truth>, Vec<Lookalike>), String> {
     let mut rng = Rng::new(scene.seed);
     let mut img = GreyImage {
         width: scene.width,
@@ -112,7 +121,8 @@ pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
         data: vec![0.0; scene.width * scene.height],
     };
     ground_texture(&mut img, &mut rng);
-    clutter(&mut img, &scene.clutter, &mut rng);
+    let mut lookalikes = Vec::new();
+    clutter(&mut img, &scene.clutter, &mut rng, &mut lookalikes);
     let mut truths = Vec::with_capacity(scene.markers.len());
     for spec in &scene.markers {
         truths.push(place_marker(&mut img, spec, &mut rng)?);
@@ -152,7 +162,7 @@ pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
     for v in img.data.iter_mut() {
         *v = v.clamp(0.0, 1.0);
     }
-    Ok((img, truths))
+    Ok((img, truths, lookalikes))
 }
 
 /// Soil and grass: two octaves of value noise plus grain.
@@ -309,7 +319,7 @@ fn place_marker(img: &mut GreyImage, spec: &MarkerSpec, rng: &mut Rng) -> Result
     })
 }
 
-fn clutter(img: &mut GreyImage, clutter: &Clutter, rng: &mut Rng) {
+fn clutter(img: &mut GreyImage, clutter: &Clutter, rng: &mut Rng, lookalikes: &mut Vec<Lookalike>) {
     let (w, h) = (img.width as f64, img.height as f64);
     for _ in 0..clutter.squares {
         let side = rng.range(20.0, 90.0);
@@ -360,7 +370,7 @@ fn clutter(img: &mut GreyImage, clutter: &Clutter, rng: &mut Rng) {
         );
     }
     for _ in 0..clutter.lookalikes {
-        printed::lookalike(img, rng);
+        lookalikes.push(printed::lookalike(img, rng));
     }
     for _ in 0..clutter.stripes {
         let (len, width) = (rng.range(150.0, 600.0), rng.range(8.0, 20.0));

@@ -26,7 +26,7 @@ use crate::survey::parse::parse_survey;
 use crate::survey::Survey;
 use crate::synth;
 
-/// Exit codes of `detect`, documented in the README.
+/// Exit codes of `detect`, documented in docs/cli.md.
 pub mod exit {
     /// Every frame was processed.
     pub const ALL_GOOD: u8 = 0;
@@ -199,7 +199,7 @@ pub struct DetectArgs {
     /// Expected ground sample distance in cm per pixel (default: from each frame's georeference, when it has one).
     #[arg(long, env = "GCP_TAGGER_GSD_CM")]
     pub gsd_cm: Option<f64>,
-    /// A printed target's design: a preset name (cross, checker, bullseye, bullseye-5, disc-black, disc-white) or a JSON file (kind, bar_width, ring_radii, board, free, size_m...); its targets are found from the description. See the README's "Printed targets".
+    /// A printed target's design: a preset name (cross, checker, bullseye, bullseye-5, disc-black, disc-white) or a JSON file (kind, bar_width, ring_radii, board, free, size_m...); its targets are found from the description. See docs/target-designs.md.
     #[arg(long, env = "GCP_TAGGER_TARGET_DESIGN")]
     pub target_design: Option<String>,
     /// No progress bar.

@@ -44,7 +44,7 @@ use crate::error_code::ErrorCode;
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum ParentLine {
     /// Run this job: read its header and answer [`ChildLine::Header`].
-    Job(JobOrder),
+    Job(Box<JobOrder>),
     /// Go on with the job within these limits.
     Go { data_limit: u64, cpu_secs: u64 },
 }
@@ -164,7 +164,7 @@ impl JobChild {
     /// [`go`]: JobChild::go
     pub fn send(&mut self, order: &JobOrder) -> std::io::Result<()> {
         let stdin = self.stdin.as_mut().ok_or(std::io::ErrorKind::BrokenPipe)?;
-        write_line(stdin, &ParentLine::Job(order.clone()))
+        write_line(stdin, &ParentLine::Job(Box::new(order.clone())))
     }
 
     /// Lets the child run with these limits.

@@ -52,8 +52,8 @@ pub struct JobParams {
     pub gsd_cm: Option<f64>,
     /// A printed target's design, found from its description: a preset
     /// name (`cross`, `checker`, `bullseye`, `bullseye-5`, `disc-black`,
-    /// `disc-white`) or the design as JSON text (see the
-    /// README's "Printed targets"). Stored in canonical JSON.
+    /// `disc-white`) or the design as JSON text (see
+    /// docs/target-designs.md). Stored in canonical JSON.
     #[serde(default)]
     #[schema(example = "cross")]
     pub target_design: Option<String>,

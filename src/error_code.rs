@@ -167,7 +167,9 @@ error_codes! {
     ShuttingDown = "shutting_down", 503, "Shutting down";
     /// Too little free disk for the upload or the result.
     InsufficientStorage = "insufficient_storage", 507, "Insufficient storage";
-    /// The disk filled while a job's result was written.
+    /// Between a worker process and the server only: the disk filled while
+    /// a job's result was written; the job goes back to the queue, so no
+    /// client sees this code.
     NoSpace = "no_space", 507, "No space";
     /// A failure of the server's; its log has the cause.
     Internal = "internal", 500, "Internal error";

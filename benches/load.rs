@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use gcp_tagger::synth::{FileKind, FlightSpec};
+use gcp_synth::{FileKind, FlightSpec};
 use serde_json::Value;
 
 mod common;

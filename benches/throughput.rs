@@ -12,7 +12,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use gcp_tagger::synth::{FileKind, FlightSpec};
+use gcp_synth::{FileKind, FlightSpec};
 
 mod common;
 use common::{generate, run_detect, run_measured};

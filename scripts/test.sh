@@ -11,10 +11,10 @@ else
   echo "test: rustfmt not installed; skipping the format check (rustup component add rustfmt)" >&2
 fi
 if cargo clippy --version >/dev/null 2>&1; then
-  cargo clippy --all-targets --locked -- -D warnings
+  cargo clippy --workspace --all-targets --locked -- -D warnings
 else
   echo "test: clippy not installed; skipping the lint (rustup component add clippy)" >&2
 fi
-cargo test --all-targets --locked "$@"
+cargo test --workspace --all-targets --locked "$@"
 bash scripts/schemathesis.sh
 bash scripts/lint-deploy.sh

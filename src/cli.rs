@@ -24,7 +24,7 @@ use crate::survey::export;
 use crate::survey::matching::{match_frames, point_reports, DEFAULT_PIXEL_TOLERANCE};
 use crate::survey::parse::parse_survey;
 use crate::survey::Survey;
-use crate::synth;
+use gcp_synth as synth;
 
 /// Exit codes of `detect`, documented in docs/cli.md.
 pub mod exit {

@@ -9,7 +9,9 @@
 //! - [`server`] and [`config`]: `gcp-tagger serve`.
 //! - [`cli`]: the `gcp-tagger` command line.
 //! - [`telemetry`]: Prometheus metrics.
-//! - [`synth`]: frames with exact ground truth for tests and benchmarks.
+//!
+//! Frames with exact ground truth (for `sample`, the tests and the
+//! benchmarks) come from the `gcp-synth` crate beside this one.
 
 pub mod api;
 pub mod cli;
@@ -20,5 +22,4 @@ pub mod pipeline;
 pub mod server;
 pub mod storage;
 pub mod survey;
-pub mod synth;
 pub mod telemetry;

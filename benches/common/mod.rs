@@ -4,7 +4,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-use gcp_tagger::synth::FlightSpec;
+use gcp_synth::FlightSpec;
 
 /// Renders frames in a separate process: Linux carries a process's peak RSS
 /// across fork+exec into its children's rusage, so rendering 8000x6000

@@ -179,6 +179,46 @@ fn xmp_number(xmp: &str, name: &str) -> Option<f64> {
 mod tests {
     use super::*;
 
+    /// What the generator writes as a drone camera does (its own EXIF and
+    /// XMP writer), GDAL and this module read back.
+    #[test]
+    fn gdal_reads_the_metadata_a_drone_frame_carries() {
+        use gcp_synth::{write_drone_meta, write_image, DroneMeta, GreyImage, SampleFormat};
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("DJI_0001.JPG");
+        let img = GreyImage {
+            width: 64,
+            height: 48,
+            data: vec![128.0; 64 * 48],
+        };
+        write_image(&path, &img, SampleFormat::Jpeg, None).unwrap();
+        let meta = DroneMeta {
+            lat: -33.8567844,
+            lon: 151.2152967,
+            abs_alt_m: 152.3,
+            rel_alt_m: 99.9,
+            gimbal_yaw_deg: -31.5,
+            gimbal_pitch_deg: -89.9,
+            gimbal_roll_deg: 0.1,
+            flight_yaw_deg: -30.0,
+            focal_mm: 8.8,
+            focal_plane_px_per_cm: 3003.0,
+        };
+        write_drone_meta(&path, &meta).unwrap();
+        crate::pipeline::init_native();
+        let ds = gdal::Dataset::open(&path).unwrap();
+        let m = CameraMeta::from_dataset(&ds).expect("camera metadata");
+        assert!((m.lat - meta.lat).abs() < 1e-7, "{m:?}");
+        assert!((m.lon - meta.lon).abs() < 1e-7, "{m:?}");
+        assert_eq!(m.abs_alt_m, Some(152.3));
+        assert_eq!(m.rel_alt_m, Some(99.9));
+        assert_eq!(m.gimbal_yaw_deg, Some(-31.5));
+        assert_eq!(m.gimbal_pitch_deg, Some(-89.9));
+        assert_eq!(m.flight_yaw_deg, Some(-30.0));
+        assert_eq!(m.focal_mm, Some(8.8));
+        assert!((m.focal_plane_px_per_mm.unwrap() - 300.3).abs() < 1e-9);
+    }
+
     #[test]
     fn exif_and_dji_xmp_values_are_read() {
         let items = |k: &str| {

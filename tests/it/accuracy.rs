@@ -1,7 +1,7 @@
 //! Centre accuracy and completeness on frames with known truth.
 
+use gcp_synth::SampleFormat;
 use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::SampleFormat;
 
 use crate::support::*;
 

@@ -13,7 +13,7 @@ use reqwest::blocking::Client;
 use serde_json::{json, Value};
 
 use crate::server::Server;
-use gcp_tagger::synth::{write_flight, FileKind, FlightSpec};
+use gcp_synth::{write_flight, FileKind, FlightSpec};
 
 /// A chromedriver process and one browser session on it.
 struct Browser {

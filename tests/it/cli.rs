@@ -4,8 +4,8 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+use gcp_synth::{sample_geo, SampleFormat};
 use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::{sample_geo, SampleFormat};
 
 use crate::support::*;
 
@@ -40,12 +40,12 @@ fn flight_with_bad_frames(dir: &Path) {
         b"these are field notes, not an image\n",
     )
     .unwrap();
-    let tiny = gcp_tagger::synth::GreyImage {
+    let tiny = gcp_synth::GreyImage {
         width: 16,
         height: 16,
         data: vec![0.5; 256],
     };
-    gcp_tagger::synth::write_image(&dir.join("tiny.png"), &tiny, SampleFormat::Png, None).unwrap();
+    gcp_synth::write_image(&dir.join("tiny.png"), &tiny, SampleFormat::Png, None).unwrap();
 }
 
 #[test]

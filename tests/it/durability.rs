@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use gcp_tagger::synth::{write_image, GreyImage, SampleFormat};
+use gcp_synth::{write_image, GreyImage, SampleFormat};
 use serde_json::Value;
 
 use crate::server::Server;

@@ -8,12 +8,11 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::survey::export::FILES;
-use gcp_tagger::synth::{
+use gcp_synth::{
     render, write_drone_meta, write_image, Clutter, DroneMeta, GeoSpec, MarkerSpec, PrintedDesign,
-    PrintedSpec, SampleFormat, Scene,
+    PrintedSpec, SampleFormat, Scene, TargetKind,
 };
+use gcp_tagger::survey::export::FILES;
 use serde_json::Value;
 
 use crate::server::Server;
@@ -118,7 +117,7 @@ fn scene(width: usize, height: usize, seed: u64) -> Scene {
 fn place(scene: &mut Scene, id: Option<u32>, center: (f64, f64), rotation: f64) {
     match id {
         Some(id) => scene.markers.push(MarkerSpec {
-            marker_type: MarkerType::AprilTag,
+            kind: TargetKind::AprilTag,
             dictionary: "36h11".into(),
             id,
             center,
@@ -129,7 +128,7 @@ fn place(scene: &mut Scene, id: Option<u32>, center: (f64, f64), rotation: f64) 
         None => scene.printed.push(PrintedSpec {
             design: PrintedDesign::Cross {
                 bar: 0.2,
-                marking: gcp_tagger::synth::Marking::None,
+                marking: gcp_synth::Marking::None,
             },
             center,
             size_px: 70.0,

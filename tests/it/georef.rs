@@ -4,8 +4,8 @@
 use std::path::Path;
 use std::process::Command;
 
+use gcp_synth::{sample_geo, GeoSpec, SampleFormat};
 use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::{sample_geo, GeoSpec, SampleFormat};
 
 use crate::support::*;
 

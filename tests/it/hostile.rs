@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-use gcp_tagger::synth::{write_image, GreyImage, SampleFormat};
+use gcp_synth::{write_image, GreyImage, SampleFormat};
 use serde_json::Value;
 
 use crate::server::{problem, Server};

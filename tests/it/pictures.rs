@@ -4,9 +4,9 @@
 
 use std::process::Command;
 
+use gcp_synth::{write_flight, FileKind, FlightSpec};
 use gcp_tagger::pipeline::frame::Target;
 use gcp_tagger::pipeline::pictures::{chip_window, chip_zoom, Crop};
-use gcp_tagger::synth::{write_flight, FileKind, FlightSpec};
 
 /// Pixels of the pure red the centre is drawn in: (column, row).
 fn red_pixels(path: &std::path::Path) -> (usize, usize, Vec<(usize, usize)>) {

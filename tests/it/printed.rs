@@ -9,11 +9,11 @@
 //! takes are in `crosshair_lookalikes_the_design_detector_still_takes`
 //! (ignored: the known gap of issue 44).
 
-use gcp_tagger::pipeline::detect::MarkerType;
-use gcp_tagger::synth::{
+use gcp_synth::{
     clutter_scene, printed_scene, render_with_lookalikes, write_image, Lookalike, LookalikeKind,
-    SampleFormat, Scene, Truth,
+    SampleFormat, Scene, TargetKind, Truth,
 };
+use gcp_tagger::pipeline::detect::MarkerType;
 
 use crate::support::*;
 
@@ -43,7 +43,7 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
     let mut errors = [Vec::new(), Vec::new()];
     let (mut truths, mut missed) = (0usize, 0usize);
     for seed in seed0..seed0 + FRAMES {
-        let scene = printed_scene(2400, 1800, TARGETS, mode, (40.0, 120.0), seed);
+        let scene = printed_scene(2400, 1800, TARGETS, kind(mode), (40.0, 120.0), seed);
         let name = format!("{mode}{seed}.png");
         let (path, truth) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);
         let result = run_one(&path, &printed_options(&[mode]));
@@ -256,7 +256,7 @@ fn a_checker_beside_objects_of_its_levels_is_found() {
 /// 44's 95th percentile; the checker beside objects of its levels is off
 /// by 0.215 px).
 fn assert_target_found(seed: u64, at: (usize, usize), near: (f64, f64)) {
-    let scene = printed_scene(2400, 1800, 30, MarkerType::Crosshair, (40.0, 120.0), seed);
+    let scene = printed_scene(2400, 1800, 30, TargetKind::Crosshair, (40.0, 120.0), seed);
     let (found, truths, _) = crosshairs_in_scene_window(&scene, at);
     let truth = truths
         .iter()

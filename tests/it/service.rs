@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use gcp_tagger::synth::{write_flight, FileKind, FlightSpec};
+use gcp_synth::{write_flight, FileKind, FlightSpec};
 use serde_json::Value;
 
 use crate::server::{problem, Server};

@@ -5,13 +5,13 @@
 
 use std::path::{Path, PathBuf};
 
+use gcp_synth::{
+    render, write_image, Clutter, GeoSpec, Grid, MarkerSpec, Rng, SampleFormat, Scene, Truth,
+};
 use gcp_tagger::pipeline::batch::{run_batch, BatchOptions, FrameInput, FrameOutcome};
 use gcp_tagger::pipeline::detect::{DetectorConfig, MarkerType};
 use gcp_tagger::pipeline::frame::{FrameOptions, FrameResult, Target};
 use gcp_tagger::pipeline::georef::TargetCrs;
-use gcp_tagger::synth::{
-    render, write_image, Clutter, GeoSpec, Grid, MarkerSpec, Rng, SampleFormat, Scene, Truth,
-};
 
 /// Default options for a pipeline run in tests.
 pub fn options(crs: &str, modes: &[MarkerType]) -> BatchOptions {
@@ -79,7 +79,7 @@ pub fn grid_scene(
     let grid = Grid::new(width, height, count);
     let markers = (0..count)
         .map(|i| MarkerSpec {
-            marker_type,
+            kind: kind(marker_type),
             dictionary: dictionary.to_string(),
             id: (i as u32 * 3 + 1) % 30,
             center: grid.position(i, 0.15, &mut rng),
@@ -117,6 +117,13 @@ pub struct Matching {
     pub false_positives: Vec<Target>,
 }
 
+/// The generator's name for a detection mode.
+pub fn kind(mode: MarkerType) -> gcp_synth::TargetKind {
+    mode.as_str()
+        .parse()
+        .expect("the generator draws every mode")
+}
+
 pub fn match_truth(targets: &[Target], truth: &[Truth]) -> Matching {
     let mut used = vec![false; targets.len()];
     let mut errors = Vec::new();
@@ -127,8 +134,8 @@ pub fn match_truth(targets: &[Target], truth: &[Truth]) -> Matching {
             .enumerate()
             .filter(|(i, d)| {
                 !used[*i]
-                    && d.detection.marker_type == t.marker_type
-                    && (d.detection.marker_id == Some(t.id) || !t.marker_type.is_coded())
+                    && kind(d.detection.marker_type) == t.kind
+                    && (d.detection.marker_id == Some(t.id) || !d.detection.marker_type.is_coded())
                     && dist(d.detection.center, t.center) < t.side_px / 2.0
             })
             .min_by(|a, b| {

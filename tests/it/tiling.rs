@@ -1,13 +1,13 @@
 //! Targets across tile seams and at frame edges, clutter, and ArUco.
 
+use gcp_synth::{Clutter, MarkerSpec, SampleFormat, Scene, TargetKind};
 use gcp_tagger::pipeline::detect::{ArucoDictionary, MarkerType};
-use gcp_tagger::synth::{Clutter, MarkerSpec, SampleFormat, Scene};
 
 use crate::support::*;
 
 fn marker(id: u32, center: (f64, f64), side: f64, rot: f64) -> MarkerSpec {
     MarkerSpec {
-        marker_type: MarkerType::AprilTag,
+        kind: TargetKind::AprilTag,
         dictionary: "36h11".into(),
         id,
         center,
@@ -149,7 +149,7 @@ fn aruco_and_apriltag_in_one_frame() {
     );
     for (i, m) in scene.markers.iter_mut().enumerate() {
         if i % 2 == 0 {
-            m.marker_type = MarkerType::Aruco;
+            m.kind = TargetKind::Aruco;
             m.dictionary = "5X5_100".into();
             m.id = 40 + i as u32;
         }

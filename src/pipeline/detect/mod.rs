@@ -28,7 +28,7 @@ use opencv::core::Mat;
 pub use apriltag::{tag_cells, AprilTagDetector, AprilTagFamily, TagCells};
 pub use circle::CircleDetector;
 pub use design::TargetDesign;
-pub use fiducial::{marker_bits, ArucoDictionary, FiducialDetector};
+pub use fiducial::{ArucoDictionary, FiducialDetector};
 pub use printed::PrintedDetector;
 
 /// Why a tile could not be searched.

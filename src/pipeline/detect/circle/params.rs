@@ -3,7 +3,7 @@
 use super::super::SizeSlack;
 
 /// Thresholds of the circle detector ([`super::CircleDetector`]). The
-/// defaults were checked on generated frames (`examples/printed_misses.rs`
+/// defaults were checked on generated frames (`tools/src/bin/printed_misses.rs`
 /// `circle SEED N` and look-alike scenes) and on the real photos of the
 /// README, as each field says.
 #[derive(Debug, Clone, PartialEq)]

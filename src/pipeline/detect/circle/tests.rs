@@ -371,8 +371,7 @@ fn a_disc_on_an_oblong_board_is_not_a_target() {
 /// by levels had three sides, all arcs of the ring.
 #[test]
 fn a_disc_in_a_ring_at_the_frames_edge_is_not_a_target() {
-    let (img, _) =
-        crate::synth::render(&crate::synth::clutter_scene(2400, 1800, 1407)).expect("render");
+    let (img, _) = gcp_synth::render(&gcp_synth::clutter_scene(2400, 1800, 1407)).expect("render");
     let w = 256usize;
     let data: Vec<u8> = img
         .window(0, 1098 - 128, w, w)

@@ -37,7 +37,7 @@ use verify::{verify, Fit, Verdict};
 use walk::{continuation, follow, Arm, Feature};
 
 /// Thresholds of the printed-target detector, checked on generated frames
-/// (`examples/printed_misses.rs`, `DESIGN=cross,checker`) and on the real
+/// (`tools/src/bin/printed_misses.rs`, `DESIGN=cross,checker`) and on the real
 /// photos of the README. `max_repeat_score`, `min_score`,
 /// `max_arm_offset_px`, `max_width_spread` and `max_fit_rms_px` were
 /// chosen on generated frames (targets against look-alikes: true targets

@@ -2,7 +2,7 @@
 //! `tests/it/printed.rs`, runs the pipeline, and prints every missed target
 //! with its conditions and why the detector rejected the candidates near it.
 //!
-//!     cargo run --release --example printed_misses -- crosshair 300 4
+//!     cargo run --release -p gcp-tools --bin printed_misses -- crosshair 300 4
 //!
 //! `EXPECT_PX=60` narrows the size range as a survey's target size and GSD
 //! would (60 px x/÷ 1.5); `RMS=1` prints every hit, `BOARD=1` the board's
@@ -21,12 +21,12 @@ use std::collections::BTreeMap;
 use std::io::BufRead;
 use std::sync::Mutex;
 
+use gcp_synth::GreyImage;
+use gcp_synth::{clutter_scene, printed_scene, render, write_image, SampleFormat};
 use gcp_tagger::pipeline::batch::{run_batch, BatchOptions, FrameInput};
 use gcp_tagger::pipeline::detect::{DetectorConfig, MarkerType};
 use gcp_tagger::pipeline::frame::FrameOptions;
 use gcp_tagger::pipeline::georef::TargetCrs;
-use gcp_tagger::synth::GreyImage;
-use gcp_tagger::synth::{clutter_scene, printed_scene, render, write_image, SampleFormat};
 
 /// Writes a 3x enlarged crop of `img` around `c` to /tmp/crops/`name`.png.
 fn crop(img: &GreyImage, c: (f64, f64), half: usize, name: &str) {
@@ -64,6 +64,13 @@ fn crop(img: &GreyImage, c: (f64, f64), half: usize, name: &str) {
         None,
     )
     .unwrap();
+}
+
+/// The generator's name for a detection mode.
+fn kind(mode: MarkerType) -> gcp_synth::TargetKind {
+    mode.as_str()
+        .parse()
+        .expect("the generator draws every mode")
 }
 
 fn main() {
@@ -132,7 +139,7 @@ fn main() {
         let scene = if clutter {
             clutter_scene(2400, 1800, 700 + seed)
         } else {
-            printed_scene(2400, 1800, 30, mode, (40.0, 120.0), seed)
+            printed_scene(2400, 1800, 30, kind(mode), (40.0, 120.0), seed)
         };
         let (img, truth) = render(&scene).unwrap();
         if let Ok(dir) = std::env::var("FRAMES") {
@@ -238,10 +245,9 @@ fn main() {
                             spec.design, spec.size_px, spec.contrast, spec.shadow, spec.perspective, d.detection.fit_rms_px
                         );
                         if std::env::var("BOARD").is_ok() {
-                            use gcp_tagger::pipeline::detect::geometry::{apply, square_to_quad};
-                            let h = square_to_quad(&t.corners);
+                            let h = gcp_synth::Homography::from_unit_square(&t.corners);
                             let b = [(-0.5, -0.5), (1.5, -0.5), (1.5, 1.5), (-0.5, 1.5)]
-                                .map(|p| apply(&h, p));
+                                .map(|p| h.apply(p));
                             for k in 0..4 {
                                 let (p, q) = (b[k], b[(k + 1) % 4]);
                                 let d = (q.0 - p.0, q.1 - p.1);

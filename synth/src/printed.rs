@@ -3,11 +3,10 @@
 
 use std::f64::consts::PI;
 
-use crate::pipeline::detect::geometry::{self, Pt};
-use crate::pipeline::detect::MarkerType;
-
-use super::render::{bbox_of, invert, paint, square_corners, GreyImage, Truth};
+use super::geometry::{Homography, Pt};
+use super::render::{bbox_of, paint, square_corners, GreyImage, Truth};
 use super::render::{PAPER_BLACK, PAPER_WHITE};
+use super::tags::TargetKind;
 use super::Rng;
 
 /// Designs of printed targets. Sizes are fractions of the target's size
@@ -78,10 +77,10 @@ impl Marking {
 }
 
 impl PrintedDesign {
-    pub fn marker_type(self) -> MarkerType {
+    pub fn kind(self) -> TargetKind {
         match self {
-            PrintedDesign::Cross { .. } | PrintedDesign::Checker => MarkerType::Crosshair,
-            PrintedDesign::Bullseye { .. } | PrintedDesign::Disc { .. } => MarkerType::Circle,
+            PrintedDesign::Cross { .. } | PrintedDesign::Checker => TargetKind::Crosshair,
+            PrintedDesign::Bullseye { .. } | PrintedDesign::Disc { .. } => TargetKind::Circle,
         }
     }
 }
@@ -111,8 +110,8 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
         spec.perspective,
         rng,
     );
-    let h = geometry::square_to_quad(&corners);
-    let inv = invert(&h);
+    let h = Homography::from_unit_square(&corners);
+    let inv = h.inverse();
     let mid = 0.5f32;
     let k = spec.contrast as f32;
     let (black, white) = (mid - (mid - PAPER_BLACK) * k, mid + (PAPER_WHITE - mid) * k);
@@ -123,10 +122,10 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
         PrintedDesign::Disc { .. } => 1.0,
     };
     let outline = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
-        .map(|(u, v)| geometry::apply(&h, (0.5 + u * reach, 0.5 + v * reach)));
+        .map(|(u, v)| h.apply((0.5 + u * reach, 0.5 + v * reach)));
     let design = spec.design;
     paint(img, bbox_of(&outline), |px, py| {
-        let (u, v) = geometry::apply(&inv, (px, py));
+        let (u, v) = inv.apply((px, py));
         let (x, y) = (u - 0.5, v - 0.5);
         if x.abs() > reach || y.abs() > reach {
             return None;
@@ -150,9 +149,9 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
         local_shadow(img, spec.center, angle, offset, 2.0 * spec.size_px);
     }
     Truth {
-        marker_type: spec.design.marker_type(),
+        kind: spec.design.kind(),
         id: index,
-        center: geometry::apply(&h, (0.5, 0.5)),
+        center: h.apply((0.5, 0.5)),
         corners,
         side_px: spec.size_px,
     }

@@ -7,20 +7,66 @@
 //! truth is in OpenCV coordinates (centre of the top-left pixel is 0,0).
 
 mod exif;
+mod geometry;
 mod printed;
 mod render;
+mod tags;
 mod write;
 
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 pub use exif::{write_drone_meta, DroneMeta};
+pub use geometry::{dist, Homography, Pt};
 pub use printed::{Lookalike, LookalikeKind, Marking, PrintedDesign, PrintedSpec};
 pub use render::{render, render_with_lookalikes, Clutter, GreyImage, MarkerSpec, Scene, Truth};
+pub use tags::{marker_cells, TargetKind};
 pub use write::{write_image, GeoSpec, SampleFormat};
 
-use crate::pipeline::detect::{AprilTagFamily, MarkerType};
+/// What can go wrong making a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("unknown marker dictionary {0:?}")]
+    UnknownDictionary(String),
+    #[error("{dictionary} has {count} ids, not {id}")]
+    NoSuchId {
+        dictionary: String,
+        id: u32,
+        count: u32,
+    },
+    #[error("unknown target kind {0:?} (apriltag, aruco, crosshair, circle)")]
+    UnknownKind(String),
+    #[error("{0} targets carry no code")]
+    NoCode(TargetKind),
+    #[error("OpenCV cannot draw the marker: {0}")]
+    OpenCv(String),
+    #[error("unknown sample kind {0:?} (jpeg, png, gtiff, gtiff16)")]
+    UnknownFileKind(String),
+    #[error("cannot write {path}: {source}")]
+    Gdal {
+        path: PathBuf,
+        source: gdal::errors::GdalError,
+    },
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{0} is not a JPEG")]
+    NotJpeg(PathBuf),
+    #[error("a metadata segment of {0} bytes does not fit a JPEG APP1 segment")]
+    SegmentTooLong(usize),
+}
+
+impl Error {
+    fn io(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
+        move |source| Error::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
 
 /// splitmix64: small, fast, and the same on every platform.
 #[derive(Debug, Clone)]
@@ -75,16 +121,14 @@ impl FileKind {
 }
 
 impl FromStr for FileKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self, Error> {
         match s.to_ascii_lowercase().as_str() {
             "jpeg" | "jpg" => Ok(FileKind::Jpeg),
             "png" => Ok(FileKind::Png),
             "gtiff" | "tif" | "tiff" => Ok(FileKind::Gtiff),
             "gtiff16" => Ok(FileKind::Gtiff16),
-            other => Err(format!(
-                "unknown sample kind {other:?} (jpeg, png, gtiff, gtiff16)"
-            )),
+            other => Err(Error::UnknownFileKind(other.to_string())),
         }
     }
 }
@@ -196,7 +240,6 @@ fn place_tags(
     seed: u64,
     rng: &mut Rng,
 ) -> Vec<MarkerSpec> {
-    let family = AprilTagFamily::default();
     let mut specs: Vec<MarkerSpec> = Vec::new();
     let mut attempts = 0;
     while specs.len() < count && attempts < count * 200 {
@@ -207,14 +250,15 @@ fn place_tags(
             rng.range(margin, width as f64 - margin),
             rng.range(margin, height as f64 - margin),
         );
-        if specs.iter().any(|m| {
-            crate::pipeline::detect::geometry::dist(m.center, c) < 3.0 * (m.side_px + side)
-        }) {
+        if specs
+            .iter()
+            .any(|m| dist(m.center, c) < 3.0 * (m.side_px + side))
+        {
             continue;
         }
         specs.push(MarkerSpec {
-            marker_type: MarkerType::AprilTag,
-            dictionary: family.name().to_string(),
+            kind: TargetKind::AprilTag,
+            dictionary: "36h11".to_string(),
             id: (specs.len() as u32 * 7 + seed as u32) % 587,
             center: c,
             side_px: side,
@@ -264,7 +308,7 @@ pub fn printed_scene(
     width: usize,
     height: usize,
     count: usize,
-    mode: MarkerType,
+    mode: TargetKind,
     sizes: (f64, f64),
     seed: u64,
 ) -> Scene {
@@ -273,7 +317,7 @@ pub fn printed_scene(
     let printed = (0..count)
         .map(|i| {
             let design = match (mode, i % 2) {
-                (MarkerType::Circle, 0) => {
+                (TargetKind::Circle, 0) => {
                     // Ring ratios of the designs in use: 1:2:3, a wide
                     // centre disc, a thin outer ring, and between.
                     let inner = rng.range(0.25, 0.45);
@@ -282,7 +326,7 @@ pub fn printed_scene(
                         middle: rng.range(inner + 0.2, (inner + 0.4).min(0.8)),
                     }
                 }
-                (MarkerType::Circle, _) => PrintedDesign::Disc {
+                (TargetKind::Circle, _) => PrintedDesign::Disc {
                     white_on_black: rng.uniform() < 0.5,
                 },
                 (_, 0) => PrintedDesign::Cross {
@@ -356,8 +400,8 @@ pub fn clutter_scene(width: usize, height: usize, seed: u64) -> Scene {
 }
 
 /// Writes a flight of frames and `truth.csv` to `dir`; returns the count.
-pub fn write_flight(dir: &Path, spec: &FlightSpec) -> Result<usize, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+pub fn write_flight(dir: &Path, spec: &FlightSpec) -> Result<usize, Error> {
+    std::fs::create_dir_all(dir).map_err(Error::io(dir))?;
     let mut truth = String::from("image,marker_type,marker_id,px_x,px_y,size_px\n");
     for i in 0..spec.frames {
         let seed = spec.seed * 1000 + i as u64;
@@ -366,7 +410,7 @@ pub fn write_flight(dir: &Path, spec: &FlightSpec) -> Result<usize, String> {
         } else {
             random_scene(spec.width, spec.height, spec.markers, seed)
         };
-        let (image, truths) = render(&scene).map_err(|e| format!("rendering failed: {e}"))?;
+        let (image, truths) = render(&scene)?;
         let name = format!("frame_{i:04}.{}", spec.kind.extension());
         let geo = matches!(spec.kind, FileKind::Gtiff | FileKind::Gtiff16).then(|| sample_geo(i));
         let format = match spec.kind {
@@ -375,16 +419,15 @@ pub fn write_flight(dir: &Path, spec: &FlightSpec) -> Result<usize, String> {
             FileKind::Gtiff => SampleFormat::GtiffRgb8,
             FileKind::Gtiff16 => SampleFormat::Gtiff16Rgbn,
         };
-        write_image(&dir.join(&name), &image, format, geo.as_ref())
-            .map_err(|e| format!("{name}: {e}"))?;
+        write_image(&dir.join(&name), &image, format, geo.as_ref())?;
         for t in truths {
             truth.push_str(&format!(
                 "{name},{},{},{:.4},{:.4},{:.2}\n",
-                t.marker_type, t.id, t.center.0, t.center.1, t.side_px
+                t.kind, t.id, t.center.0, t.center.1, t.side_px
             ));
         }
     }
-    std::fs::write(dir.join("truth.csv"), truth)
-        .map_err(|e| format!("cannot write truth.csv: {e}"))?;
+    let csv = dir.join("truth.csv");
+    std::fs::write(&csv, truth).map_err(Error::io(&csv))?;
     Ok(spec.frames)
 }

@@ -6,7 +6,7 @@ use gdal::raster::{Buffer, ColorInterpretation, RasterCreationOptions};
 use gdal::spatial_ref::SpatialRef;
 use gdal::{Dataset, DriverManager};
 
-use super::GreyImage;
+use super::{Error, GreyImage};
 
 /// How a grey image is stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -38,8 +38,11 @@ pub fn write_image(
     img: &GreyImage,
     format: SampleFormat,
     geo: Option<&GeoSpec>,
-) -> Result<(), String> {
-    write_inner(path, img, format, geo).map_err(|e| format!("cannot write {}: {e}", path.display()))
+) -> Result<(), Error> {
+    write_inner(path, img, format, geo).map_err(|source| Error::Gdal {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 fn write_inner(

@@ -3,14 +3,14 @@
 # README ("Beyond the test's frames") and prints the detections per set and in all:
 # every one is a false positive. Two streams (about 45 min on 2 cores).
 #
-#     bash scripts/clutter-sets.sh            # all 36 sets, 558 frames
-#     bash scripts/clutter-sets.sh 900:16     # any SEED:FRAMES sets
-#     ONLY=circle bash scripts/clutter-sets.sh  # one mode alone (about half the time)
+#     bash tools/clutter-sets.sh            # all 36 sets, 558 frames
+#     bash tools/clutter-sets.sh 900:16     # any SEED:FRAMES sets
+#     ONLY=circle bash tools/clutter-sets.sh  # one mode alone (about half the time)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . scripts/env.sh
-cargo build --release --locked --example printed_misses
-bin="$CARGO_TARGET_DIR/release/examples/printed_misses"
+cargo build --release --locked -p gcp-tools --bin printed_misses
+bin="$CARGO_TARGET_DIR/release/printed_misses"
 sets=("$@")
 if [ ${#sets[@]} -eq 0 ]; then
   sets=(0:10 100:16 300:16 400:16 30:8 40:20 200:16 500:8 600:16 700:16 800:16

@@ -5,6 +5,8 @@
 
 use std::path::Path;
 
+use crate::Error;
+
 /// The pose and camera a test frame claims to come from.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DroneMeta {
@@ -22,10 +24,10 @@ pub struct DroneMeta {
 }
 
 /// Inserts EXIF and XMP into the JPEG at `path`.
-pub fn write_drone_meta(path: &Path, meta: &DroneMeta) -> Result<(), String> {
-    let jpeg = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+pub fn write_drone_meta(path: &Path, meta: &DroneMeta) -> Result<(), Error> {
+    let jpeg = std::fs::read(path).map_err(Error::io(path))?;
     if !jpeg.starts_with(&[0xFF, 0xD8]) {
-        return Err(format!("{} is not a JPEG", path.display()));
+        return Err(Error::NotJpeg(path.to_path_buf()));
     }
     let mut out = Vec::with_capacity(jpeg.len() + 4096);
     out.extend_from_slice(&jpeg[..2]);
@@ -39,11 +41,12 @@ pub fn write_drone_meta(path: &Path, meta: &DroneMeta) -> Result<(), String> {
         .concat(),
     )?;
     out.extend_from_slice(&jpeg[2..]);
-    std::fs::write(path, out).map_err(|e| format!("{}: {e}", path.display()))
+    std::fs::write(path, out).map_err(Error::io(path))
 }
 
-fn segment(out: &mut Vec<u8>, payload: &[u8]) -> Result<(), String> {
-    let len = u16::try_from(payload.len() + 2).map_err(|_| "APP1 segment too long")?;
+fn segment(out: &mut Vec<u8>, payload: &[u8]) -> Result<(), Error> {
+    let len =
+        u16::try_from(payload.len() + 2).map_err(|_| Error::SegmentTooLong(payload.len() + 2))?;
     out.extend_from_slice(&[0xFF, 0xE1]);
     out.extend_from_slice(&len.to_be_bytes());
     out.extend_from_slice(payload);
@@ -191,48 +194,4 @@ fn tiff(m: &DroneMeta) -> Vec<u8> {
     out.extend(ifd(exif_at, exif));
     out.extend(ifd(gps_at, gps));
     out
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::pipeline::camera::CameraMeta;
-    use crate::synth::{write_image, GreyImage, SampleFormat};
-
-    #[test]
-    fn gdal_reads_back_what_was_written() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("DJI_0001.JPG");
-        let img = GreyImage {
-            width: 64,
-            height: 48,
-            data: vec![128.0; 64 * 48],
-        };
-        write_image(&path, &img, SampleFormat::Jpeg, None).unwrap();
-        let meta = DroneMeta {
-            lat: -33.8567844,
-            lon: 151.2152967,
-            abs_alt_m: 152.3,
-            rel_alt_m: 99.9,
-            gimbal_yaw_deg: -31.5,
-            gimbal_pitch_deg: -89.9,
-            gimbal_roll_deg: 0.1,
-            flight_yaw_deg: -30.0,
-            focal_mm: 8.8,
-            focal_plane_px_per_cm: 3003.0,
-        };
-        write_drone_meta(&path, &meta).unwrap();
-        crate::pipeline::init_native();
-        let ds = gdal::Dataset::open(&path).unwrap();
-        let m = CameraMeta::from_dataset(&ds).expect("camera metadata");
-        assert!((m.lat - meta.lat).abs() < 1e-7, "{m:?}");
-        assert!((m.lon - meta.lon).abs() < 1e-7, "{m:?}");
-        assert_eq!(m.abs_alt_m, Some(152.3));
-        assert_eq!(m.rel_alt_m, Some(99.9));
-        assert_eq!(m.gimbal_yaw_deg, Some(-31.5));
-        assert_eq!(m.gimbal_pitch_deg, Some(-89.9));
-        assert_eq!(m.flight_yaw_deg, Some(-30.0));
-        assert_eq!(m.focal_mm, Some(8.8));
-        assert!((m.focal_plane_px_per_mm.unwrap() - 300.3).abs() < 1e-9);
-    }
 }

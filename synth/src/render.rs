@@ -1,8 +1,9 @@
 //! Scene rendering on a float grey canvas (0 = black, 1 = white).
 
+use super::geometry::{mean_side, Homography, Pt};
 use super::printed::Lookalike;
-use crate::pipeline::detect::geometry::{self, Pt};
-use crate::pipeline::detect::{marker_bits, MarkerType};
+use super::tags::{marker_cells, TargetKind};
+use super::Error;
 
 use super::printed::{self, PrintedSpec};
 use super::Rng;
@@ -39,7 +40,7 @@ impl GreyImage {
 /// One marker to place.
 #[derive(Debug, Clone)]
 pub struct MarkerSpec {
-    pub marker_type: MarkerType,
+    pub kind: TargetKind,
     /// AprilTag family or ArUco dictionary name.
     pub dictionary: String,
     pub id: u32,
@@ -95,7 +96,7 @@ pub struct Scene {
 /// Where a marker really is.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Truth {
-    pub marker_type: MarkerType,
+    pub kind: TargetKind,
     pub id: u32,
     /// Image of the marker's centre under its homography.
     pub center: Pt,
@@ -105,7 +106,7 @@ pub struct Truth {
 }
 
 /// Renders `scene`; returns the image and the markers' truth.
-pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
+pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), Error> {
     render_with_lookalikes(scene).map(|(img, truths, _)| (img, truths))
 }
 
@@ -113,7 +114,7 @@ pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), String> {
 /// from a look-alike first check that it is in the frame).
 pub fn render_with_lookalikes(
     scene: &Scene,
-) -> Result<(GreyImage, Vec<Truth>, Vec<Lookalike>), String> {
+) -> Result<(GreyImage, Vec<Truth>, Vec<Lookalike>), Error> {
     let mut rng = Rng::new(scene.seed);
     let mut img = GreyImage {
         width: scene.width,
@@ -248,11 +249,6 @@ pub(super) fn bbox_of(points: &[Pt]) -> (f64, f64, f64, f64) {
         })
 }
 
-/// A marker homography's inverse (markers are never degenerate).
-pub(super) fn invert(h: &[f64; 9]) -> [f64; 9] {
-    geometry::invert3(h).expect("marker homography is invertible")
-}
-
 /// The marker's outer-border corners for its centre, size, rotation and
 /// perspective jitter.
 fn marker_corners(spec: &MarkerSpec, rng: &mut Rng) -> [Pt; 4] {
@@ -286,17 +282,16 @@ pub(super) fn square_corners(
 }
 
 /// Renders a marker with a one-cell white quiet zone, as printed targets have.
-fn place_marker(img: &mut GreyImage, spec: &MarkerSpec, rng: &mut Rng) -> Result<Truth, String> {
-    let bits = marker_bits(spec.marker_type, &spec.dictionary, spec.id)?;
+fn place_marker(img: &mut GreyImage, spec: &MarkerSpec, rng: &mut Rng) -> Result<Truth, Error> {
+    let bits = marker_cells(spec.kind, &spec.dictionary, spec.id)?;
     let n = bits.len();
     let corners = marker_corners(spec, rng);
-    let h = geometry::square_to_quad(&corners);
-    let inv = invert(&h);
+    let h = Homography::from_unit_square(&corners);
+    let inv = h.inverse();
     let q = 1.0 / n as f64;
-    let outer = [(-q, -q), (1.0 + q, -q), (1.0 + q, 1.0 + q), (-q, 1.0 + q)]
-        .map(|p| geometry::apply(&h, p));
+    let outer = [(-q, -q), (1.0 + q, -q), (1.0 + q, 1.0 + q), (-q, 1.0 + q)].map(|p| h.apply(p));
     paint(img, bbox_of(&outer), |x, y| {
-        let (u, v) = geometry::apply(&inv, (x, y));
+        let (u, v) = inv.apply((x, y));
         if !(-q..1.0 + q).contains(&u) || !(-q..1.0 + q).contains(&v) {
             return None;
         }
@@ -311,11 +306,11 @@ fn place_marker(img: &mut GreyImage, spec: &MarkerSpec, rng: &mut Rng) -> Result
         })
     });
     Ok(Truth {
-        marker_type: spec.marker_type,
+        kind: spec.kind,
         id: spec.id,
-        center: geometry::apply(&h, (0.5, 0.5)),
+        center: h.apply((0.5, 0.5)),
         corners,
-        side_px: geometry::mean_side(&corners),
+        side_px: mean_side(&corners),
     })
 }
 

@@ -1,9 +1,9 @@
 //! Development aid: writes the 640 px window of a clutter scene that a
 //! test in `tests/it/printed.rs` names, to look at what it holds.
 //!
-//!     cargo run --release --example scene_window -- SEED X0 Y0 out.png
+//!     cargo run --release -p gcp-tools --bin scene_window -- SEED X0 Y0 out.png
 
-use gcp_tagger::synth::{clutter_scene, render, write_image, SampleFormat};
+use gcp_synth::{clutter_scene, render, write_image, SampleFormat};
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();

@@ -15,6 +15,9 @@ if cargo clippy --version >/dev/null 2>&1; then
 else
   echo "test: clippy not installed; skipping the lint (rustup component add clippy)" >&2
 fi
+suite_start=$SECONDS
 cargo test --workspace --all-targets --locked "$@"
+suite_seconds=$((SECONDS - suite_start))
 bash scripts/schemathesis.sh
 bash scripts/lint-deploy.sh
+echo "test: everything passed in $SECONDS s (cargo test: $suite_seconds s, builds included)" >&2

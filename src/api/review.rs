@@ -22,6 +22,7 @@ use crate::jobs::results::load_result;
 use crate::jobs::review::{self, Reviews, Verdict};
 use crate::jobs::{JobRecord, JobState};
 use crate::pipeline::frame::FrameResult;
+use crate::storage::StoredFileError;
 
 /// One detection as a reviewer sees it.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -133,7 +134,7 @@ pub async fn flight_observations(
         .collect();
     jobs.sort_by(|a, b| a.image.cmp(&b.image));
     let inner = state.clone();
-    let list = tokio::task::spawn_blocking(move || -> Result<ObservationList, String> {
+    let list = tokio::task::spawn_blocking(move || -> Result<ObservationList, StoredFileError> {
         let mut read = Vec::with_capacity(jobs.len());
         for job in jobs {
             let frame = load_result(&inner.data, job.id)?;

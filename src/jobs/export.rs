@@ -93,13 +93,14 @@ async fn export(
     let (data, flight) = (data.clone(), flight.clone());
     let files = tokio::task::spawn_blocking(move || {
         // The stored results are read once for every file.
-        let frames = load_frames(&data, &jobs, Selection::NotRejected)?;
+        let frames =
+            load_frames(&data, &jobs, Selection::NotRejected).map_err(|e| e.to_string())?;
         let crs = TargetCrs::parse(&flight.params.crs).map_err(|e| format!("stored CRS: {e}"))?;
         let mut files = vec![
             ("results.csv", render(Format::Csv, &frames, &crs)),
             ("results.geojson", render(Format::GeoJson, &frames, &crs)),
         ];
-        if let Some(stored) = gcp::load_survey(&data, flight.id)? {
+        if let Some(stored) = gcp::load_survey(&data, flight.id).map_err(|e| e.to_string())? {
             let survey = stored.parse().map_err(|e| format!("stored survey: {e}"))?;
             files.extend(gcp::exports_for(&frames, &flight, &survey)?);
         }

@@ -7,7 +7,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::pipeline::georef::Transformer;
-use crate::storage::DataDir;
+use crate::storage::{DataDir, StoredFileError};
 use crate::survey::assign::parse_assignments;
 use crate::survey::matching::{match_frames, Matched, DEFAULT_PIXEL_TOLERANCE};
 use crate::survey::parse::{parse_survey, SurveyError};
@@ -45,14 +45,11 @@ pub fn save_survey(data: &DataDir, flight: FlightId, survey: &StoredSurvey) -> s
 }
 
 /// A flight's stored survey, if it has one.
-pub fn load_survey(data: &DataDir, flight: FlightId) -> Result<Option<StoredSurvey>, String> {
-    match std::fs::read(data.survey_path(flight)) {
-        Ok(bytes) => serde_json::from_slice(&bytes)
-            .map(Some)
-            .map_err(|e| format!("stored survey: {e}")),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(format!("cannot read the stored survey: {e}")),
-    }
+pub fn load_survey(
+    data: &DataDir,
+    flight: FlightId,
+) -> Result<Option<StoredSurvey>, StoredFileError> {
+    data.read_json(&data.survey_path(flight))
 }
 
 /// Every export file of a flight with a survey, from its succeeded jobs'
@@ -65,7 +62,8 @@ pub fn flight_exports(
     survey: &Survey,
     selection: Selection,
 ) -> Result<Vec<(&'static str, String)>, String> {
-    exports_for(&load_frames(data, jobs, selection)?, flight, survey)
+    let frames = load_frames(data, jobs, selection).map_err(|e| e.to_string())?;
+    exports_for(&frames, flight, survey)
 }
 
 /// Every export file from frame results already read.

@@ -4,12 +4,21 @@
 //! sorted by image name, so the order jobs finished in never shows.
 
 use crate::pipeline::frame::FrameResult;
-use crate::pipeline::georef::TargetCrs;
+use crate::pipeline::georef::{GeorefError, TargetCrs};
 use crate::pipeline::output::{render, Format};
-use crate::storage::DataDir;
+use crate::storage::{DataDir, StoredFileError};
 
 use super::model::{JobId, JobRecord, JobState};
 use super::review::{self, Selection};
+
+/// Why stored results cannot be rendered.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error(transparent)]
+    Stored(#[from] StoredFileError),
+    #[error("the flight's stored CRS {crs:?} no longer parses: {source}")]
+    Crs { crs: String, source: GeorefError },
+}
 
 /// Renders the results of the succeeded jobs among `jobs` in `crs`, the
 /// targets `selection` keeps.
@@ -20,8 +29,11 @@ pub fn render_jobs(
     crs: &str,
     format: Format,
     selection: Selection,
-) -> Result<String, String> {
-    let crs = TargetCrs::parse(crs).map_err(|e| format!("stored CRS: {e}"))?;
+) -> Result<String, RenderError> {
+    let crs = TargetCrs::parse(crs).map_err(|source| RenderError::Crs {
+        crs: crs.to_string(),
+        source,
+    })?;
     let frames = load_frames(data, jobs, selection)?;
     Ok(render(format, &frames, &crs))
 }
@@ -32,7 +44,7 @@ pub fn load_frames(
     data: &DataDir,
     jobs: &[JobRecord],
     selection: Selection,
-) -> Result<Vec<FrameResult>, String> {
+) -> Result<Vec<FrameResult>, StoredFileError> {
     let mut frames: Vec<FrameResult> = Vec::with_capacity(jobs.len());
     for job in jobs.iter().filter(|j| j.state == JobState::Succeeded) {
         let mut frame = load_result(data, job.id)?;
@@ -44,8 +56,7 @@ pub fn load_frames(
 }
 
 /// A succeeded job's stored result, every target kept.
-pub fn load_result(data: &DataDir, job: JobId) -> Result<FrameResult, String> {
-    let bytes = std::fs::read(data.result_path(job))
-        .map_err(|e| format!("cannot read a stored result: {e}"))?;
-    serde_json::from_slice(&bytes).map_err(|e| format!("cannot parse a stored result: {e}"))
+pub fn load_result(data: &DataDir, job: JobId) -> Result<FrameResult, StoredFileError> {
+    let path = data.result_path(job);
+    data.read_json(&path)?.ok_or(StoredFileError::Missing(path))
 }

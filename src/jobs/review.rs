@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::pipeline::frame::FrameResult;
-use crate::storage::DataDir;
+use crate::storage::{DataDir, StoredFileError};
 
 use super::model::JobId;
 
@@ -90,14 +90,8 @@ impl Reviews {
 }
 
 /// A job's stored reviews (none stored: every target unreviewed).
-pub fn load(data: &DataDir, job: JobId) -> Result<Reviews, String> {
-    match std::fs::read(data.review_path(job)) {
-        Ok(bytes) => {
-            serde_json::from_slice(&bytes).map_err(|e| format!("stored review of job {job}: {e}"))
-        }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Reviews::default()),
-        Err(e) => Err(format!("cannot read the review of job {job}: {e}")),
-    }
+pub fn load(data: &DataDir, job: JobId) -> Result<Reviews, StoredFileError> {
+    Ok(data.read_json(&data.review_path(job))?.unwrap_or_default())
 }
 
 /// Stores a job's reviews, replacing what was there.

@@ -4,4 +4,4 @@ pub mod header;
 pub mod s3;
 pub mod spool;
 
-pub use spool::DataDir;
+pub use spool::{DataDir, StoredFileError};

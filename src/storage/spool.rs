@@ -15,6 +15,21 @@ use std::sync::Arc;
 
 use uuid::Uuid;
 
+/// A file the service stored that cannot be used: the data folder was
+/// changed behind its back, or the disk failed.
+#[derive(Debug, thiserror::Error)]
+pub enum StoredFileError {
+    #[error("cannot read the stored file {path}: {source}")]
+    Read { path: PathBuf, source: io::Error },
+    #[error("the stored file {path} is not what this version wrote: {source}")]
+    Parse {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
+    #[error("the stored file {0} is missing")]
+    Missing(PathBuf),
+}
+
 /// Longest image name kept, in bytes; longer names are cut.
 const MAX_NAME_BYTES: usize = 200;
 
@@ -125,6 +140,30 @@ impl DataDir {
         self.root
             .join("spool")
             .join(format!("{}.part", Uuid::now_v7()))
+    }
+
+    /// The JSON file at `path` (one of this folder's: a result, a review, a
+    /// survey), or None when there is none.
+    pub fn read_json<T: serde::de::DeserializeOwned>(
+        &self,
+        path: &Path,
+    ) -> Result<Option<T>, StoredFileError> {
+        let bytes = match std::fs::read(path) {
+            Ok(bytes) => bytes,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
+            Err(source) => {
+                return Err(StoredFileError::Read {
+                    path: path.to_path_buf(),
+                    source,
+                })
+            }
+        };
+        serde_json::from_slice(&bytes)
+            .map(Some)
+            .map_err(|source| StoredFileError::Parse {
+                path: path.to_path_buf(),
+                source,
+            })
     }
 
     /// Writes `bytes` to `path` through a temporary file and a rename, so the

@@ -20,7 +20,9 @@ use std::str::FromStr;
 pub use exif::{write_drone_meta, DroneMeta};
 pub use geometry::{dist, Homography, Pt};
 pub use printed::{Lookalike, LookalikeKind, Marking, PrintedDesign, PrintedSpec};
-pub use render::{render, render_with_lookalikes, Clutter, GreyImage, MarkerSpec, Scene, Truth};
+pub use render::{
+    render, render_window, render_with_lookalikes, Clutter, GreyImage, MarkerSpec, Scene, Truth,
+};
 pub use tags::{marker_cells, TargetKind};
 pub use write::{write_image, GeoSpec, SampleFormat};
 
@@ -82,6 +84,13 @@ impl Rng {
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
         z ^ (z >> 31)
+    }
+    /// Moves on as `draws` calls of [`Rng::next_u64`] would (the state is
+    /// a counter: O(1)).
+    pub fn skip(&mut self, draws: u64) {
+        self.0 = self
+            .0
+            .wrapping_add(0x9E37_79B9_7F4A_7C15u64.wrapping_mul(draws));
     }
     /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {

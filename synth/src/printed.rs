@@ -4,7 +4,7 @@
 use std::f64::consts::PI;
 
 use super::geometry::{Homography, Pt};
-use super::render::{bbox_of, paint, square_corners, GreyImage, Truth};
+use super::render::{bbox_of, paint, square_corners, Canvas, Truth};
 use super::render::{PAPER_BLACK, PAPER_WHITE};
 use super::tags::TargetKind;
 use super::Rng;
@@ -102,7 +102,7 @@ pub struct PrintedSpec {
 }
 
 /// Paints `spec`; `index` becomes the truth's id (printed targets carry none).
-pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &mut Rng) -> Truth {
+pub(super) fn place(img: &mut Canvas, spec: &PrintedSpec, index: u32, rng: &mut Rng) -> Truth {
     let corners = square_corners(
         spec.center,
         spec.size_px,
@@ -159,7 +159,7 @@ pub(super) fn place(img: &mut GreyImage, spec: &PrintedSpec, index: u32, rng: &m
 
 /// A straight shadow edge through `center` (moved by `offset` along its
 /// normal) darkening one side within `radius`, as a pole or a tree casts.
-fn local_shadow(img: &mut GreyImage, center: Pt, angle: f64, offset: f64, radius: f64) {
+fn local_shadow(img: &mut Canvas, center: Pt, angle: f64, offset: f64, radius: f64) {
     let (s, c) = angle.sin_cos();
     super::render::paint_over(img, center, radius, |x, y| {
         let d = -s * (x - center.0) + c * (y - center.1) - offset;
@@ -198,8 +198,8 @@ impl Lookalike {
 }
 
 /// Paints one random look-alike of a printed target.
-pub(super) fn lookalike(img: &mut GreyImage, rng: &mut Rng) -> Lookalike {
-    let (w, h) = (img.width as f64, img.height as f64);
+pub(super) fn lookalike(img: &mut Canvas, rng: &mut Rng) -> Lookalike {
+    let (w, h) = (img.frame.0 as f64, img.frame.1 as f64);
     let c = (rng.range(0.0, w), rng.range(0.0, h));
     let angle = rng.range(0.0, PI);
     let (s, co) = angle.sin_cos();

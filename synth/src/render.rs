@@ -105,6 +105,38 @@ pub struct Truth {
     pub side_px: f64,
 }
 
+/// The part of a frame being drawn: the frame's size, and the region of it
+/// held in memory (the whole frame, or a window and a margin around it).
+/// Drawing takes the same random draws and gives every pixel of the region
+/// the value it has in the whole frame; filters (blur) see the region's
+/// edge as the frame's, so a margin wider than their reach keeps the
+/// window inside it exact.
+pub(super) struct Canvas {
+    /// The frame's width and height.
+    pub frame: (usize, usize),
+    /// The region's top left corner in the frame, and its size.
+    x0: usize,
+    y0: usize,
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+}
+
+impl Canvas {
+    /// Frame columns in the region.
+    pub fn xs(&self) -> std::ops::Range<usize> {
+        self.x0..self.x0 + self.width
+    }
+    /// Frame rows in the region.
+    pub fn ys(&self) -> std::ops::Range<usize> {
+        self.y0..self.y0 + self.height
+    }
+    /// The pixel at frame position (x, y), which must be in the region.
+    pub fn px(&mut self, x: usize, y: usize) -> &mut f32 {
+        &mut self.data[(y - self.y0) * self.width + (x - self.x0)]
+    }
+}
+
 /// Renders `scene`; returns the image and the markers' truth.
 pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), Error> {
     render_with_lookalikes(scene).map(|(img, truths, _)| (img, truths))
@@ -115,65 +147,117 @@ pub fn render(scene: &Scene) -> Result<(GreyImage, Vec<Truth>), Error> {
 pub fn render_with_lookalikes(
     scene: &Scene,
 ) -> Result<(GreyImage, Vec<Truth>, Vec<Lookalike>), Error> {
-    let mut rng = Rng::new(scene.seed);
-    let mut img = GreyImage {
-        width: scene.width,
-        height: scene.height,
-        data: vec![0.0; scene.width * scene.height],
+    render_window(scene, 0, 0, scene.width, scene.height)
+}
+
+/// The `width` x `height` window of `scene` from (`x0`, `y0`), exactly as
+/// in the whole frame's render but drawn on the window and a margin only;
+/// the truths and look-alikes of the whole frame, in frame pixels.
+pub fn render_window(
+    scene: &Scene,
+    x0: usize,
+    y0: usize,
+    width: usize,
+    height: usize,
+) -> Result<(GreyImage, Vec<Truth>, Vec<Lookalike>), Error> {
+    assert!(
+        x0 + width <= scene.width && y0 + height <= scene.height,
+        "window outside the frame"
+    );
+    // The filters' reach: the Gaussian's radius, the motion blur's half
+    // length and its bilinear neighbour, each side, with a pixel to spare.
+    let margin = blur_radius(scene.blur_sigma).max(0) as usize
+        + (scene.motion_blur.0 / 2.0).ceil() as usize
+        + 3;
+    let (rx0, ry0) = (x0.saturating_sub(margin), y0.saturating_sub(margin));
+    let (rx1, ry1) = (
+        (x0 + width + margin).min(scene.width),
+        (y0 + height + margin).min(scene.height),
+    );
+    let mut img = Canvas {
+        frame: (scene.width, scene.height),
+        x0: rx0,
+        y0: ry0,
+        width: rx1 - rx0,
+        height: ry1 - ry0,
+        data: vec![0.0; (rx1 - rx0) * (ry1 - ry0)],
     };
-    ground_texture(&mut img, &mut rng);
+    let (truths, lookalikes) = draw(scene, &mut img)?;
+    let region = GreyImage {
+        width: img.width,
+        height: img.height,
+        data: img.data,
+    };
+    Ok((
+        region.window(x0 - rx0, y0 - ry0, width, height),
+        truths,
+        lookalikes,
+    ))
+}
+
+/// Draws `scene` on `img`'s region.
+fn draw(scene: &Scene, img: &mut Canvas) -> Result<(Vec<Truth>, Vec<Lookalike>), Error> {
+    let mut rng = Rng::new(scene.seed);
+    ground_texture(img, &mut rng);
     let mut lookalikes = Vec::new();
-    clutter(&mut img, &scene.clutter, &mut rng, &mut lookalikes);
+    clutter(img, &scene.clutter, &mut rng, &mut lookalikes);
     let mut truths = Vec::with_capacity(scene.markers.len());
     for spec in &scene.markers {
-        truths.push(place_marker(&mut img, spec, &mut rng)?);
+        truths.push(place_marker(img, spec, &mut rng)?);
     }
     if scene.tag_shadows > 0.0 {
         for t in &truths {
             if rng.uniform() < scene.tag_shadows {
-                shadow_across(&mut img, t.center, t.side_px, &mut rng);
+                shadow_across(img, t.center, t.side_px, &mut rng);
             }
         }
     }
     for (i, spec) in scene.printed.iter().enumerate() {
-        truths.push(printed::place(&mut img, spec, i as u32, &mut rng));
+        truths.push(printed::place(img, spec, i as u32, &mut rng));
     }
     for _ in 0..scene.shadows {
-        shadow(&mut img, &mut rng);
+        shadow(img, &mut rng);
     }
     if scene.gradient != 0.0 {
-        let w = img.width as f64;
+        let w = scene.width as f64;
         for (i, v) in img.data.iter_mut().enumerate() {
-            let x = (i % img.width) as f64;
+            let x = (img.x0 + i % img.width) as f64;
             *v *= (1.0 - scene.gradient / 2.0 + scene.gradient * x / w) as f32;
         }
     }
     if scene.blur_sigma > 0.0 {
-        gaussian_blur(&mut img, scene.blur_sigma);
+        gaussian_blur(img, scene.blur_sigma);
     }
     if scene.motion_blur.0 > 0.0 {
-        motion_blur(&mut img, scene.motion_blur.0, scene.motion_blur.1);
+        motion_blur(img, scene.motion_blur.0, scene.motion_blur.1);
     }
     if scene.noise_sigma > 0.0 {
+        // One normal deviate per frame pixel in raster order, each two
+        // draws: the region's rows jump to their place in that sequence.
         let s = (scene.noise_sigma / 255.0) as f32;
-        for v in img.data.iter_mut() {
-            *v += s * rng.normal() as f32;
+        for (row, y) in img.ys().enumerate() {
+            let mut r = rng.clone();
+            r.skip(2 * (y * scene.width + img.x0) as u64);
+            for v in &mut img.data[row * img.width..][..img.width] {
+                *v += s * r.normal() as f32;
+            }
         }
     }
     for v in img.data.iter_mut() {
         *v = v.clamp(0.0, 1.0);
     }
-    Ok((img, truths, lookalikes))
+    Ok((truths, lookalikes))
 }
 
 /// Soil and grass: two octaves of value noise plus grain.
-fn ground_texture(img: &mut GreyImage, rng: &mut Rng) {
-    let coarse = ValueNoise::new(img.width, img.height, 96.0, rng);
-    let fine = ValueNoise::new(img.width, img.height, 7.0, rng);
-    for y in 0..img.height {
-        for x in 0..img.width {
+fn ground_texture(img: &mut Canvas, rng: &mut Rng) {
+    let (w, h) = img.frame;
+    let coarse = ValueNoise::new(w, h, 96.0, rng);
+    let fine = ValueNoise::new(w, h, 7.0, rng);
+    for y in img.ys() {
+        for x in img.xs() {
             let v = 0.40 + 0.22 * (coarse.at(x, y) - 0.5) + 0.12 * (fine.at(x, y) - 0.5);
-            img.data[y * img.width + x] = v as f32;
+            *img.px(x, y) = v as f32;
         }
     }
 }
@@ -209,14 +293,14 @@ impl ValueNoise {
 /// Paints a shape over `bbox` with area anti-aliasing: `shade(x, y)` gives
 /// the shape's value at an image point, or None outside the shape.
 pub(super) fn paint(
-    img: &mut GreyImage,
+    img: &mut Canvas,
     bbox: (f64, f64, f64, f64),
     shade: impl Fn(f64, f64) -> Option<f32>,
 ) {
-    let x0 = (bbox.0.floor() as i64).max(0) as usize;
-    let y0 = (bbox.1.floor() as i64).max(0) as usize;
-    let x1 = ((bbox.2.ceil() as i64).max(0) as usize).min(img.width - 1);
-    let y1 = ((bbox.3.ceil() as i64).max(0) as usize).min(img.height - 1);
+    let x0 = ((bbox.0.floor() as i64).max(0) as usize).max(img.x0);
+    let y0 = ((bbox.1.floor() as i64).max(0) as usize).max(img.y0);
+    let x1 = ((bbox.2.ceil() as i64).max(0) as usize).min(img.xs().end - 1);
+    let y1 = ((bbox.3.ceil() as i64).max(0) as usize).min(img.ys().end - 1);
     let n = SUPERSAMPLE;
     let step = 1.0 / n as f64;
     for y in y0..=y1 {
@@ -233,9 +317,9 @@ pub(super) fn paint(
                 }
             }
             if hits > 0 {
-                let bg = img.data[y * img.width + x];
+                let px = img.px(x, y);
                 let total = (n * n) as f32;
-                img.data[y * img.width + x] = bg * (total - hits as f32) / total + sum / total;
+                *px = *px * (total - hits as f32) / total + sum / total;
             }
         }
     }
@@ -282,7 +366,7 @@ pub(super) fn square_corners(
 }
 
 /// Renders a marker with a one-cell white quiet zone, as printed targets have.
-fn place_marker(img: &mut GreyImage, spec: &MarkerSpec, rng: &mut Rng) -> Result<Truth, Error> {
+fn place_marker(img: &mut Canvas, spec: &MarkerSpec, rng: &mut Rng) -> Result<Truth, Error> {
     let bits = marker_cells(spec.kind, &spec.dictionary, spec.id)?;
     let n = bits.len();
     let corners = marker_corners(spec, rng);
@@ -314,8 +398,8 @@ fn place_marker(img: &mut GreyImage, spec: &MarkerSpec, rng: &mut Rng) -> Result
     })
 }
 
-fn clutter(img: &mut GreyImage, clutter: &Clutter, rng: &mut Rng, lookalikes: &mut Vec<Lookalike>) {
-    let (w, h) = (img.width as f64, img.height as f64);
+fn clutter(img: &mut Canvas, clutter: &Clutter, rng: &mut Rng, lookalikes: &mut Vec<Lookalike>) {
+    let (w, h) = (img.frame.0 as f64, img.frame.1 as f64);
     for _ in 0..clutter.squares {
         let side = rng.range(20.0, 90.0);
         let c = (rng.range(0.0, w), rng.range(0.0, h));
@@ -381,18 +465,18 @@ fn clutter(img: &mut GreyImage, clutter: &Clutter, rng: &mut Rng, lookalikes: &m
 }
 
 /// A straight-edged shadow band across the frame.
-fn shadow(img: &mut GreyImage, rng: &mut Rng) {
-    let (w, h) = (img.width as f64, img.height as f64);
+fn shadow(img: &mut Canvas, rng: &mut Rng) {
+    let (w, h) = (img.frame.0 as f64, img.frame.1 as f64);
     let c = (rng.range(0.0, w), rng.range(0.0, h));
     let (s, co) = rng.range(0.0, std::f64::consts::PI).sin_cos();
     let half = rng.range(40.0, 300.0);
-    for y in 0..img.height {
-        for x in 0..img.width {
+    for y in img.ys() {
+        for x in img.xs() {
             let d = -s * (x as f64 - c.0) + co * (y as f64 - c.1);
             // Penumbra of one pixel: coverage of the band edge.
             let cover = (half + 0.5 - d.abs()).clamp(0.0, 1.0) as f32;
             if cover > 0.0 {
-                img.data[y * img.width + x] *= 1.0 - 0.45 * cover;
+                *img.px(x, y) *= 1.0 - 0.45 * cover;
             }
         }
     }
@@ -401,7 +485,7 @@ fn shadow(img: &mut GreyImage, rng: &mut Rng) {
 /// A shadow band with hard edges across a tag: through a point within a
 /// quarter side of its centre, a third to two sides wide, darkening to
 /// 40-60%, ending three sides from the tag.
-fn shadow_across(img: &mut GreyImage, centre: Pt, side: f64, rng: &mut Rng) {
+fn shadow_across(img: &mut Canvas, centre: Pt, side: f64, rng: &mut Rng) {
     let through = (
         centre.0 + rng.range(-0.25, 0.25) * side,
         centre.1 + rng.range(-0.25, 0.25) * side,
@@ -420,28 +504,33 @@ fn shadow_across(img: &mut GreyImage, centre: Pt, side: f64, rng: &mut Rng) {
 
 /// Multiplies the pixels within `reach` of `centre` by `factor(x, y)`.
 pub(super) fn paint_over(
-    img: &mut GreyImage,
+    img: &mut Canvas,
     centre: Pt,
     reach: f64,
     factor: impl Fn(f64, f64) -> f32,
 ) {
-    let x0 = (centre.0 - reach).max(0.0) as usize;
-    let y0 = (centre.1 - reach).max(0.0) as usize;
-    let x1 = ((centre.0 + reach) as usize).min(img.width - 1);
-    let y1 = ((centre.1 + reach) as usize).min(img.height - 1);
+    let x0 = ((centre.0 - reach).max(0.0) as usize).max(img.x0);
+    let y0 = ((centre.1 - reach).max(0.0) as usize).max(img.y0);
+    let x1 = ((centre.0 + reach) as usize).min(img.xs().end - 1);
+    let y1 = ((centre.1 + reach) as usize).min(img.ys().end - 1);
     for y in y0..=y1 {
         for x in x0..=x1 {
             let (fx, fy) = (x as f64, y as f64);
             if (fx - centre.0).hypot(fy - centre.1) <= reach {
-                img.data[y * img.width + x] *= factor(fx, fy);
+                *img.px(x, y) *= factor(fx, fy);
             }
         }
     }
 }
 
-/// Separable Gaussian blur, edges clamped.
-fn gaussian_blur(img: &mut GreyImage, sigma: f64) {
-    let radius = (3.0 * sigma).ceil() as i64;
+/// The Gaussian's radius in pixels.
+fn blur_radius(sigma: f64) -> i64 {
+    (3.0 * sigma).ceil() as i64
+}
+
+/// Separable Gaussian blur of the region, its edges clamped.
+fn gaussian_blur(img: &mut Canvas, sigma: f64) {
+    let radius = blur_radius(sigma);
     let kernel: Vec<f32> = (-radius..=radius)
         .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
         .collect();
@@ -474,7 +563,7 @@ fn gaussian_blur(img: &mut GreyImage, sigma: f64) {
 
 /// Linear motion blur: the mean of `length` px of positions along `angle_deg`
 /// (bilinear), a symmetric kernel like a camera moving during exposure.
-fn motion_blur(img: &mut GreyImage, length: f64, angle_deg: f64) {
+fn motion_blur(img: &mut Canvas, length: f64, angle_deg: f64) {
     let (s, c) = angle_deg.to_radians().sin_cos();
     let n = (length.ceil() as usize).max(1) * 2 + 1;
     let offsets: Vec<Pt> = (0..n)
@@ -502,6 +591,41 @@ fn motion_blur(img: &mut GreyImage, length: f64, angle_deg: f64) {
                 .map(|o| at(x as f64 + o.0, y as f64 + o.1))
                 .sum();
             img.data[y * w + x] = sum / n as f32;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{clutter_scene, printed_scene, random_scene, TargetKind};
+
+    /// A window drawn alone equals the same window of the whole frame, bit
+    /// for bit: inside, at the frame's edges and corners, with motion blur.
+    #[test]
+    fn a_window_is_the_whole_frames_window() {
+        let mut moving = printed_scene(900, 700, 6, TargetKind::Crosshair, (40.0, 90.0), 5);
+        moving.motion_blur = (2.5, 30.0);
+        let scenes = [
+            clutter_scene(900, 700, 1407),
+            random_scene(900, 700, 5, 3),
+            printed_scene(900, 700, 6, TargetKind::Circle, (40.0, 90.0), 4),
+            moving,
+        ];
+        for scene in &scenes {
+            let (whole, truths, lookalikes) = render_with_lookalikes(scene).unwrap();
+            for (x0, y0, w, h) in [(0, 0, 200, 150), (350, 260, 240, 200), (640, 500, 260, 200)] {
+                let (part, t, l) = render_window(scene, x0, y0, w, h).unwrap();
+                let expected = whole.window(x0, y0, w, h);
+                let same = part
+                    .data
+                    .iter()
+                    .zip(&expected.data)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "scene {}: window at {x0},{y0} differs", scene.seed);
+                assert_eq!(t, truths);
+                assert_eq!(l, lookalikes);
+            }
         }
     }
 }

@@ -13,7 +13,7 @@ use super::{Error, GreyImage};
 pub enum SampleFormat {
     /// 8-bit RGB JPEG, quality 95.
     Jpeg,
-    /// 8-bit RGB PNG.
+    /// 8-bit RGB PNG (deflate level 1).
     Png,
     /// 8-bit RGB GeoTIFF.
     GtiffRgb8,
@@ -121,7 +121,9 @@ fn write_inner(
             }
             let (name, options) = match format {
                 SampleFormat::Jpeg => ("JPEG", RasterCreationOptions::from_iter(["QUALITY=95"])),
-                _ => ("PNG", RasterCreationOptions::new()),
+                // Test frames are read once: the least deflate effort
+                // (the pixels are the same at any level).
+                _ => ("PNG", RasterCreationOptions::from_iter(["ZLEVEL=1"])),
             };
             let driver = DriverManager::get_driver_by_name(name)?;
             ds.create_copy(&driver, path, &options)?;

@@ -25,11 +25,11 @@ pub(crate) fn big_frame(dir: &Path, name: &str) -> PathBuf {
     path
 }
 
-/// An 8000x6000 JPEG of noise: with `marker_types=apriltag,crosshair`,
-/// about two seconds of candidates for one worker (a job that outlasts a
-/// few requests).
-fn noise_frame(dir: &Path) -> PathBuf {
-    let (w, h) = (8000, 6000);
+/// A JPEG of noise: with `marker_types=apriltag,crosshair`, candidates for
+/// one worker of the test build for a while (6000x4000: several seconds, a
+/// job that outlasts a few requests; tests that need it longer cancel it
+/// rather than wait for it).
+fn noise_frame(dir: &Path, (w, h): (usize, usize)) -> PathBuf {
     let mut x = 0x9E37_79B9_7F4A_7C15u64;
     let noise = GreyImage {
         width: w,
@@ -341,7 +341,7 @@ fn a_queued_frame_over_a_lowered_size_limit_fails_when_its_worker_opens_it() {
 #[test]
 fn during_the_shutdown_grace_readiness_is_503_and_new_work_is_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let big = noise_frame(dir.path());
+    let big = noise_frame(dir.path(), (6000, 4000));
     let data = dir.path().join("d");
     let mut server = Server::start(&data, &["--workers", "1", "--shutdown-grace-secs", "60"]);
     let (_, big_job) =
@@ -377,7 +377,7 @@ fn during_the_shutdown_grace_readiness_is_503_and_new_work_is_refused() {
 fn a_full_disk_pauses_jobs_and_they_finish_once_space_returns() {
     let frames = &flight().1;
     let dir = tempfile::tempdir().unwrap();
-    let noise = noise_frame(dir.path());
+    let noise = noise_frame(dir.path(), (6000, 4000));
     let data = dir.path().join("d");
     let server =
         Server::start_on_small_disk(&data, 256, &["--workers", "1", "--min-free-disk-mb", "64"]);
@@ -432,7 +432,7 @@ fn a_full_disk_pauses_jobs_and_they_finish_once_space_returns() {
 fn a_long_poll_that_runs_out_says_to_ask_again() {
     let frames = &flight().1;
     let dir = tempfile::tempdir().unwrap();
-    let noise = noise_frame(dir.path());
+    let noise = noise_frame(dir.path(), (8000, 6000));
     let data = dir.path().join("d");
     let server = Server::start(&data, &["--workers", "1"]);
     let upload = [noise.as_path(), frames[0].as_path()];
@@ -454,7 +454,14 @@ fn a_long_poll_that_runs_out_says_to_ask_again() {
     assert_eq!(r.headers()["retry-after"], "0");
     let r = server.get(&format!("/v1/flights/{id}?wait=1"));
     assert_eq!(r.headers()["retry-after"], "0");
-    // Ended: no Retry-After.
+    // Ended: no Retry-After. The noise frame is canceled, not waited for.
+    let noise_job = job_id(&server, &id, "noise.jpg");
+    let r = server
+        .client
+        .post(server.url(&format!("/v1/jobs/{noise_job}/cancel")))
+        .send()
+        .unwrap();
+    assert!(r.status().is_success(), "{}", r.status());
     server.wait_flight(&id);
     let r = server.get(&format!("/v1/jobs/{queued}?wait=1"));
     assert!(r.headers().get("retry-after").is_none());

@@ -1,6 +1,7 @@
 //! Printed targets without a code (crosshair, checker, bullseye, disc):
 //! completeness and centre accuracy under aerial conditions, and silence on
-//! frames full of look-alikes.
+//! windows that hold look-alikes (the rate over whole look-alike scenes is
+//! measured by `cargo bench --bench lookalikes`).
 //!
 //! `crosshair` runs the design detector with the `cross` and `checker`
 //! presets. The look-alike windows below were collected while an earlier,
@@ -10,7 +11,7 @@
 //! (ignored: the known gap of issue 44).
 
 use gcp_synth::{
-    clutter_scene, printed_scene, render_with_lookalikes, write_image, Lookalike, LookalikeKind,
+    clutter_scene, printed_scene, render_window, write_image, Lookalike, LookalikeKind,
     SampleFormat, Scene, TargetKind, Truth,
 };
 use gcp_tagger::pipeline::detect::MarkerType;
@@ -127,45 +128,6 @@ fn bullseye_and_disc_centres_are_subpixel() {
     assert!(quantile(disc, 0.95) <= 0.3, "disc p95");
 }
 
-/// Solar panels, paving checkers, road crosses, manholes, pyramid roofs,
-/// tanks on roofs, cars, windows, discs and rings, on 10 frames (seeds
-/// 700-709) and 2302 (rings lying concentric on bare ground): circles none,
-/// crosshairs at most 0.6 per frame (6 on these 11: fragments of panel
-/// grids and paving). Issue 44 asks 0.02 per frame; this guards what is
-/// reached.
-#[test]
-fn lookalike_clutter_gives_few_detections() {
-    let dir = tempfile::tempdir().unwrap();
-    let modes = [MarkerType::Crosshair, MarkerType::Circle];
-    let seeds: Vec<u64> = (700..710).chain([2302]).collect();
-    let mut found = Vec::new();
-    for &seed in &seeds {
-        let scene = clutter_scene(2400, 1800, seed);
-        let name = format!("clutter{seed}.png");
-        let (path, _) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);
-        let result = run_one(&path, &printed_options(&modes));
-        found.extend(result.targets.iter().map(|t| {
-            (
-                seed,
-                t.detection.marker_type,
-                t.detection.center,
-                t.detection.size_px,
-            )
-        }));
-    }
-    eprintln!("look-alikes taken: {found:?}");
-    assert!(
-        found.iter().all(|f| f.1 == MarkerType::Crosshair),
-        "{found:?}"
-    );
-    assert!(
-        found.len() as f64 <= 0.6 * seeds.len() as f64,
-        "{} on {} frames: {found:?}",
-        found.len(),
-        seeds.len()
-    );
-}
-
 /// The top left corner of a clutter scene's 640 px bottom right corner.
 const CORNER: (usize, usize) = (2400 - 640, 1800 - 640);
 
@@ -208,8 +170,7 @@ fn crosshairs_in_scene_window(
     (x0, y0): (usize, usize),
 ) -> (Vec<Spot>, Vec<Truth>, Vec<Lookalike>) {
     let dir = tempfile::tempdir().unwrap();
-    let (img, truths, lookalikes) = render_with_lookalikes(scene).expect("render");
-    let crop = img.window(x0, y0, 640, 640);
+    let (crop, truths, lookalikes) = render_window(scene, x0, y0, 640, 640).expect("render");
     let path = dir
         .path()
         .join(format!("scene{}-{x0}-{y0}.png", scene.seed));

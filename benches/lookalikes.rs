@@ -19,6 +19,11 @@ use gcp_tagger::pipeline::frame::{default_tile_size, FrameOptions};
 use gcp_tagger::pipeline::georef::TargetCrs;
 
 fn main() {
+    // `cargo test --all-targets` runs benches too: there, say how to run it.
+    if !std::env::args().any(|a| a == "--bench") {
+        println!("lookalikes: run with `cargo bench --bench lookalikes`");
+        return;
+    }
     let args: Vec<u64> = std::env::args()
         .skip(1)
         .filter_map(|a| a.parse().ok())

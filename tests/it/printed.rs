@@ -43,12 +43,21 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
     let dir = tempfile::tempdir().unwrap();
     let mut errors = [Vec::new(), Vec::new()];
     let (mut truths, mut missed) = (0usize, 0usize);
-    for seed in seed0..seed0 + FRAMES {
-        let scene = printed_scene(2400, 1800, TARGETS, kind(mode), (40.0, 120.0), seed);
-        let name = format!("{mode}{seed}.png");
-        let (path, truth) = write_scene(dir.path(), &name, &scene, SampleFormat::Png, None);
-        let result = run_one(&path, &printed_options(&[mode]));
-        let m = match_truth(&result.targets, &truth);
+    // The frames are rendered side by side and detected in one batch (two
+    // threads), as a flight would be.
+    let scenes: Vec<(String, Scene)> = (seed0..seed0 + FRAMES)
+        .map(|seed| {
+            let scene = printed_scene(2400, 1800, TARGETS, kind(mode), (40.0, 120.0), seed);
+            (format!("{mode}{seed}.png"), scene)
+        })
+        .collect();
+    let frames = write_scenes(dir.path(), &scenes, SampleFormat::Png);
+    let paths: Vec<std::path::PathBuf> = frames.iter().map(|f| f.0.clone()).collect();
+    let outcomes = run(&paths, &printed_options(&[mode]));
+    for ((path, truth), outcome) in frames.iter().zip(outcomes) {
+        let name = path.file_name().unwrap().to_string_lossy();
+        let result = outcome.expect("frame processed");
+        let m = match_truth(&result.targets, truth);
         assert!(
             m.false_positives.is_empty(),
             "{name}: false positives {:?}",
@@ -63,7 +72,7 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
             assert!(t.detection.marker_id.is_none());
             assert!(t.detection.fit_rms_px.is_some());
         }
-        for tr in &truth {
+        for tr in truth {
             let hit = result
                 .targets
                 .iter()

@@ -64,6 +64,22 @@ pub fn write_scene(
     (path, truth)
 }
 
+/// Renders each `(name, scene)` side by side (a thread each) and writes it
+/// to `dir/name`, in order.
+pub fn write_scenes(
+    dir: &Path,
+    scenes: &[(String, Scene)],
+    format: SampleFormat,
+) -> Vec<(PathBuf, Vec<Truth>)> {
+    std::thread::scope(|s| {
+        let renders: Vec<_> = scenes
+            .iter()
+            .map(|(name, scene)| s.spawn(move || write_scene(dir, name, scene, format, None)))
+            .collect();
+        renders.into_iter().map(|r| r.join().unwrap()).collect()
+    })
+}
+
 /// A scene of `count` markers with sides in `sides`, on a grid with random
 /// jitter, rotation and mild perspective; moderate blur and noise.
 pub fn grid_scene(

@@ -1,5 +1,7 @@
 //! Targets across tile seams and at frame edges, clutter, and ArUco.
 
+use std::path::PathBuf;
+
 use gcp_synth::{Clutter, MarkerSpec, SampleFormat, Scene, TargetKind};
 use gcp_tagger::pipeline::detect::{ArucoDictionary, MarkerType};
 
@@ -98,38 +100,39 @@ fn targets_on_seams_and_edges_are_found_once() {
 #[test]
 fn clutter_only_frames_have_no_detections() {
     let dir = tempfile::tempdir().unwrap();
-    for seed in 0..3 {
-        let scene = Scene {
-            width: 2400,
-            height: 1800,
-            seed: 900 + seed,
-            blur_sigma: 0.8,
-            noise_sigma: 3.0,
-            gradient: 0.3,
-            shadows: 2,
-            clutter: Clutter {
-                squares: 250,
-                circles: 120,
-                stripes: 30,
-                lookalikes: 0,
-            },
-            markers: vec![],
-            printed: Vec::new(),
-            motion_blur: (0.0, 0.0),
-            tag_shadows: 0.0,
-        };
-        let (path, _) = write_scene(
-            dir.path(),
-            &format!("clutter{seed}.jpg"),
-            &scene,
-            SampleFormat::Jpeg,
-            None,
-        );
-        let r = run_one(
-            &path,
-            &options("EPSG:4326", &[MarkerType::AprilTag, MarkerType::Aruco]),
-        );
-        assert!(r.targets.is_empty(), "seed {seed}: {:?}", r.targets);
+    let scene = |seed: u64| Scene {
+        width: 2400,
+        height: 1800,
+        seed: 900 + seed,
+        blur_sigma: 0.8,
+        noise_sigma: 3.0,
+        gradient: 0.3,
+        shadows: 2,
+        clutter: Clutter {
+            squares: 250,
+            circles: 120,
+            stripes: 30,
+            lookalikes: 0,
+        },
+        markers: vec![],
+        printed: Vec::new(),
+        motion_blur: (0.0, 0.0),
+        tag_shadows: 0.0,
+    };
+    let scenes: Vec<(String, Scene)> = (0..3)
+        .map(|seed| (format!("clutter{seed}.jpg"), scene(seed)))
+        .collect();
+    let paths: Vec<PathBuf> = write_scenes(dir.path(), &scenes, SampleFormat::Jpeg)
+        .into_iter()
+        .map(|(path, _)| path)
+        .collect();
+    let outcomes = run(
+        &paths,
+        &options("EPSG:4326", &[MarkerType::AprilTag, MarkerType::Aruco]),
+    );
+    for (path, outcome) in paths.iter().zip(outcomes) {
+        let r = outcome.expect("frame processed");
+        assert!(r.targets.is_empty(), "{}: {:?}", path.display(), r.targets);
     }
 }
 

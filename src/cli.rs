@@ -290,7 +290,7 @@ fn detect_inner(args: DetectArgs) -> Result<u8, (u8, String)> {
     };
     let designs = match &args.target_design {
         Some(arg) => {
-            let design = TargetDesign::from_name_or_file(arg).map_err(usage)?;
+            let design = TargetDesign::from_name_or_file(arg).map_err(|e| usage(e.to_string()))?;
             vec![design]
         }
         None => Vec::new(),

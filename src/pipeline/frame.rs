@@ -388,7 +388,7 @@ fn make_pictures(
     crops: &[(Detection, Crop)],
     preview: Preview,
 ) -> Result<(), FrameError> {
-    let picture_error = |message: String| FrameError::Picture(message);
+    let picture_error = |e: pictures::PictureError| FrameError::Picture(e.to_string());
     for d in found {
         let crop = crops
             .iter()

@@ -30,6 +30,18 @@ pub enum GeorefError {
     Transform(String),
 }
 
+/// Why a frame has no usable georeference (said in its warning; the frame
+/// still gets pixel results).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NoGeoreference {
+    #[error("frame has no geotransform")]
+    NoGeotransform,
+    #[error("frame has a geotransform but no CRS")]
+    NoCrs,
+    #[error("frame CRS cannot be exported: {0}")]
+    CrsNotExportable(String),
+}
+
 /// A CRS the client asked for, checked by PROJ before any frame is read.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TargetCrs {
@@ -206,21 +218,19 @@ pub struct Georeference {
 
 impl Georeference {
     /// Reads the georeference of an open dataset, or says why there is none.
-    pub fn from_dataset(dataset: &Dataset) -> Result<Georeference, String> {
+    pub fn from_dataset(dataset: &Dataset) -> Result<Georeference, NoGeoreference> {
         let geotransform = dataset
             .geo_transform()
-            .map_err(|_| "frame has no geotransform".to_string())?;
+            .map_err(|_| NoGeoreference::NoGeotransform)?;
         if geotransform == [0.0, 1.0, 0.0, 0.0, 0.0, 1.0] {
-            return Err("frame has no geotransform".into());
+            return Err(NoGeoreference::NoGeotransform);
         }
-        let srs = dataset
-            .spatial_ref()
-            .map_err(|_| "frame has a geotransform but no CRS".to_string())?;
+        let srs = dataset.spatial_ref().map_err(|_| NoGeoreference::NoCrs)?;
         let crs = match (srs.auth_name(), srs.auth_code()) {
             (Some(name), Ok(code)) => format!("{name}:{code}"),
             _ => srs
                 .to_wkt()
-                .map_err(|e| format!("frame CRS cannot be exported: {e}"))?,
+                .map_err(|e| NoGeoreference::CrsNotExportable(e.to_string()))?,
         };
         let pixel = geotransform[1].hypot(geotransform[4]);
         let ground_m_per_px = if srs.is_projected() {

@@ -111,8 +111,24 @@ fn rgb(grey: &[u8], w: usize, h: usize, zoom: usize) -> opencv::Result<Mat> {
     Ok(zoomed)
 }
 
+/// Why a chip or a preview could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum PictureError {
+    #[error("drawing {what}: {source}")]
+    Draw {
+        what: &'static str,
+        source: opencv::Error,
+    },
+    #[error("encoding a PNG: {0}")]
+    Png(png::EncodingError),
+    #[error("encoding a JPEG: {0}")]
+    Jpeg(jpeg_encoder::EncodingError),
+    #[error("a {0} px side is too large for JPEG")]
+    TooLargeForJpeg(u32),
+}
+
 /// The chip of `d` from its crop, as PNG bytes.
-pub fn chip_png(crop: &Crop, d: &Detection) -> Result<Vec<u8>, String> {
+pub fn chip_png(crop: &Crop, d: &Detection) -> Result<Vec<u8>, PictureError> {
     let zoom = chip_zoom(crop.side);
     let draw = || -> opencv::Result<Mat> {
         let mut m = rgb(&crop.grey, crop.side, crop.side, zoom)?;
@@ -150,7 +166,10 @@ pub fn chip_png(crop: &Crop, d: &Detection) -> Result<Vec<u8>, String> {
         }
         Ok(m)
     };
-    let m = draw().map_err(|e| format!("drawing a chip: {e}"))?;
+    let m = draw().map_err(|source| PictureError::Draw {
+        what: "a chip",
+        source,
+    })?;
     encode(&m, Format::Png)
 }
 
@@ -163,10 +182,11 @@ enum Format {
 }
 
 /// Encodes an RGB Mat (the `png` and `jpeg-encoder` crates).
-fn encode(m: &Mat, format: Format) -> Result<Vec<u8>, String> {
-    let bytes = m
-        .data_bytes()
-        .map_err(|e| format!("encoding a picture: {e}"))?;
+fn encode(m: &Mat, format: Format) -> Result<Vec<u8>, PictureError> {
+    let bytes = m.data_bytes().map_err(|source| PictureError::Draw {
+        what: "a picture's pixels",
+        source,
+    })?;
     let (w, h) = (m.cols() as u32, m.rows() as u32);
     let mut out = Vec::new();
     match format {
@@ -178,15 +198,13 @@ fn encode(m: &Mat, format: Format) -> Result<Vec<u8>, String> {
             encoder
                 .write_header()
                 .and_then(|mut writer| writer.write_image_data(bytes))
-                .map_err(|e| format!("encoding a PNG: {e}"))?;
+                .map_err(PictureError::Png)?;
         }
         Format::Jpeg => {
-            let side = |v: u32| {
-                u16::try_from(v).map_err(|_| format!("a {v} px side is too large for JPEG"))
-            };
+            let side = |v: u32| u16::try_from(v).map_err(|_| PictureError::TooLargeForJpeg(v));
             jpeg_encoder::Encoder::new(&mut out, 85)
                 .encode(bytes, side(w)?, side(h)?, jpeg_encoder::ColorType::Rgb)
-                .map_err(|e| format!("encoding a JPEG: {e}"))?;
+                .map_err(PictureError::Jpeg)?;
         }
     }
     Ok(out)
@@ -255,7 +273,7 @@ impl Preview {
     }
 
     /// The preview with `targets` circled and labelled, as JPEG bytes.
-    pub fn jpeg(mut self, targets: &[&Detection]) -> Result<Vec<u8>, String> {
+    pub fn jpeg(mut self, targets: &[&Detection]) -> Result<Vec<u8>, PictureError> {
         let grey = self.grey();
         drop(self.sums);
         let f = self.factor as f64;
@@ -291,7 +309,10 @@ impl Preview {
             }
             Ok(m)
         };
-        let m = draw().map_err(|e| format!("drawing a preview: {e}"))?;
+        let m = draw().map_err(|source| PictureError::Draw {
+            what: "a preview",
+            source,
+        })?;
         encode(&m, Format::Jpeg)
     }
 }

@@ -169,7 +169,7 @@ pub fn open_frame(path: &Path) -> Result<RasterFrame, RasterError> {
         .unwrap_or(1);
     let (georeference, georeference_note) = match Georeference::from_dataset(&dataset) {
         Ok(g) => (Some(g), None),
-        Err(note) => (None, Some(note)),
+        Err(why) => (None, Some(why.to_string())),
     };
     let header = FrameHeader {
         width,

@@ -127,6 +127,17 @@ pub enum DesignError {
     Json(#[from] serde_json::Error),
     #[error("target design {name:?}: {what}")]
     Invalid { name: String, what: String },
+    #[error("target design {arg:?} is neither a preset ({presets}) nor a readable file: {source}")]
+    NotFound {
+        arg: String,
+        presets: String,
+        source: std::io::Error,
+    },
+    #[error("{file}: {source}")]
+    InFile {
+        file: String,
+        source: Box<DesignError>,
+    },
 }
 
 impl TargetDesign {
@@ -151,17 +162,19 @@ impl TargetDesign {
     }
 
     /// A preset's name or a JSON file's path.
-    pub fn from_name_or_file(arg: &str) -> Result<TargetDesign, String> {
+    pub fn from_name_or_file(arg: &str) -> Result<TargetDesign, DesignError> {
         if let Some(d) = TargetDesign::preset(arg) {
             return Ok(d);
         }
-        let text = std::fs::read_to_string(arg).map_err(|e| {
-            format!(
-                "target design {arg:?} is neither a preset ({}) nor a readable file: {e}",
-                preset_names()
-            )
+        let text = std::fs::read_to_string(arg).map_err(|source| DesignError::NotFound {
+            arg: arg.to_string(),
+            presets: preset_names(),
+            source,
         })?;
-        TargetDesign::from_json(&text).map_err(|e| format!("{arg}: {e}"))
+        TargetDesign::from_json(&text).map_err(|e| DesignError::InFile {
+            file: arg.to_string(),
+            source: Box::new(e),
+        })
     }
 
     /// Checks that the proportions describe a drawable target.

@@ -108,11 +108,11 @@ pub fn match_frames(
                 });
                 e
             }
-            Err(note) => {
+            Err(why) => {
                 out.frames.push(FrameBasis {
                     image: frame.image.clone(),
                     basis: None,
-                    note: Some(note),
+                    note: Some(why.to_string()),
                 });
                 vec![None; survey.points.len()]
             }

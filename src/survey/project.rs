@@ -16,7 +16,7 @@
 
 use crate::pipeline::camera::CameraMeta;
 use crate::pipeline::frame::FrameResult;
-use crate::pipeline::georef::{Transformer, WGS84};
+use crate::pipeline::georef::{GeorefError, Transformer, WGS84};
 
 use super::Survey;
 
@@ -41,18 +41,36 @@ pub struct Expected {
     pub basis: Basis,
 }
 
+/// Why a frame allows no prediction of where survey points appear (the
+/// note beside the frame in a match report).
+#[derive(Debug, thiserror::Error)]
+pub enum NoPrediction {
+    #[error("the frame has neither a georeference nor camera GPS metadata")]
+    NoPose,
+    #[error("the frame's metadata gives no focal length (EXIF FocalLength with FocalPlaneXResolution, or FocalLengthIn35mmFilm)")]
+    NoFocalLength,
+    #[error("survey to {to}: {source}")]
+    Projection {
+        to: &'static str,
+        source: GeorefError,
+    },
+}
+
 /// Expected positions of every survey point in `frame` (`None` for a point
 /// behind the camera), or why the frame allows no prediction.
 pub fn expected_positions(
     frame: &FrameResult,
     survey: &Survey,
     transformer: &mut Transformer,
-) -> Result<Vec<Option<Expected>>, String> {
+) -> Result<Vec<Option<Expected>>, NoPrediction> {
     let mut points: Vec<(f64, f64)> = survey.points.iter().map(|p| (p.x, p.y)).collect();
     if let Some(geo) = &frame.georeference {
         transformer
             .transform(&survey.crs, &geo.crs, &mut points)
-            .map_err(|e| format!("survey to frame CRS: {e}"))?;
+            .map_err(|source| NoPrediction::Projection {
+                to: "the frame's CRS",
+                source,
+            })?;
         return Ok(points
             .iter()
             .map(|&(x, y)| {
@@ -66,14 +84,15 @@ pub fn expected_positions(
             .collect());
     }
     let Some(camera) = &frame.camera else {
-        return Err("the frame has neither a georeference nor camera GPS metadata".into());
+        return Err(NoPrediction::NoPose);
     };
-    let focal = focal_px(camera, frame.width, frame.height).ok_or(
-        "the frame's metadata gives no focal length (EXIF FocalLength with FocalPlaneXResolution, or FocalLengthIn35mmFilm)",
-    )?;
+    let focal = focal_px(camera, frame.width, frame.height).ok_or(NoPrediction::NoFocalLength)?;
     transformer
         .transform(&survey.crs, WGS84, &mut points)
-        .map_err(|e| format!("survey to WGS84: {e}"))?;
+        .map_err(|source| NoPrediction::Projection {
+            to: "WGS84",
+            source,
+        })?;
     Ok(points
         .iter()
         .zip(&survey.points)

@@ -79,10 +79,27 @@ fn main() {
         }
     }
     let n = seeds.len() as f64;
+    // Runs of consecutive scenes as a-b.
+    let mut runs: Vec<(u64, u64)> = Vec::new();
+    for &s in &seeds {
+        match runs.last_mut() {
+            Some(r) if r.1 + 1 == s => r.1 = s,
+            _ => runs.push((s, s)),
+        }
+    }
+    let names: Vec<String> = runs
+        .iter()
+        .map(|&(a, b)| {
+            if a == b {
+                a.to_string()
+            } else {
+                format!("{a}-{b}")
+            }
+        })
+        .collect();
     println!(
-        "look-alike scenes {}-{} ({} frames of 2400x1800, {seconds:.1} s): crosshair {} ({:.2} per frame), circle {} ({:.2} per frame)",
-        seeds[0],
-        seeds[seeds.len() - 1],
+        "look-alike scenes {} ({} frames of 2400x1800, {seconds:.1} s): crosshair {} ({:.2} per frame), circle {} ({:.2} per frame)",
+        names.join(", "),
         seeds.len(),
         per_mode[0],
         per_mode[0] as f64 / n,

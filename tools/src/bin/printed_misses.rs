@@ -14,7 +14,9 @@
 //! `MISSCROP=1` a crop of each missed target (`/tmp/crops/miss*.png`),
 //! `TRUTHCROP=1` (with `ACCEPTED=1`) of every target; `DESIGN=cross,checker`
 //! (preset names or JSON files) runs the design detector; `FRAMES=dir`
-//! keeps the frames; on clutter,
+//! keeps the frames; `SIZES=120,190` draws targets of those sizes (px,
+//! default 40-120), `TARGETS=20` that many per frame (default 30),
+//! `MAXPX=400` sets `--max-target-px` (default 200); on clutter,
 //! `ONLY=circle` (or `crosshair`) runs that mode alone.
 
 use std::collections::BTreeMap;
@@ -126,20 +128,26 @@ fn main() {
                 ..DetectorConfig::default()
             },
             tile_size: gcp_tagger::pipeline::frame::PRINTED_TILE_SIZE,
-            max_target_px: 200,
+            max_target_px: std::env::var("MAXPX").map_or(200, |v| v.parse().expect("MAXPX")),
             crs: TargetCrs::parse("EPSG:4326").unwrap(),
         },
         threads: 1,
         max_ram_bytes: 2 << 30,
         chips: None,
     };
+    // SIZES=lo,hi: target sizes in px (default 40-120); TARGETS=n per frame.
+    let sizes = std::env::var("SIZES").map_or((40.0, 120.0), |v| {
+        let (lo, hi) = v.split_once(',').expect("SIZES=lo,hi");
+        (lo.parse().expect("SIZES"), hi.parse().expect("SIZES"))
+    });
+    let targets: usize = std::env::var("TARGETS").map_or(30, |v| v.parse().expect("TARGETS"));
     let (mut total, mut missed) = (0, 0);
     let mut errors: [Vec<f64>; 2] = Default::default();
     for seed in seed0..seed0 + frames {
         let scene = if clutter {
             clutter_scene(2400, 1800, 700 + seed)
         } else {
-            printed_scene(2400, 1800, 30, kind(mode), (40.0, 120.0), seed)
+            printed_scene(2400, 1800, targets, kind(mode), sizes, seed)
         };
         let (img, truth) = render(&scene).unwrap();
         if let Ok(dir) = std::env::var("FRAMES") {

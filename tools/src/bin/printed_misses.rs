@@ -249,8 +249,9 @@ fn main() {
                     errors[(t.id % 2) as usize].push(e);
                     if e > 0.3 {
                         eprintln!(
-                            "  imprecise {:?} size {:.0} err {e:.3} contrast {:.2} shadow {} persp {:.3} rms {:?}",
-                            spec.design, spec.size_px, spec.contrast, spec.shadow, spec.perspective, d.detection.fit_rms_px
+                            "  imprecise {:?} size {:.0} err {e:.3} contrast {:.2} shadow {} persp {:.3} rms {:?} at ({:.2}, {:.2}) found ({:.2}, {:.2})",
+                            spec.design, spec.size_px, spec.contrast, spec.shadow, spec.perspective, d.detection.fit_rms_px,
+                            t.center.0, t.center.1, c.0, c.1
                         );
                         if std::env::var("BOARD").is_ok() {
                             let h = gcp_synth::Homography::from_unit_square(&t.corners);

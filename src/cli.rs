@@ -403,7 +403,7 @@ fn write_exports(
     let mut transformer = Transformer::default();
     let matched = match_frames(frames, survey, tolerance, &mut transformer);
     let files = export::all(survey, &matched, tolerance, &mut transformer)
-        .map_err(|e| (exit::INTERNAL, e))?;
+        .map_err(|e| (exit::INTERNAL, e.to_string()))?;
     std::fs::create_dir_all(dir).map_err(|e| {
         (
             exit::INTERNAL,

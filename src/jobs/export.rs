@@ -102,7 +102,7 @@ async fn export(
         ];
         if let Some(stored) = gcp::load_survey(&data, flight.id).map_err(|e| e.to_string())? {
             let survey = stored.parse().map_err(|e| format!("stored survey: {e}"))?;
-            files.extend(gcp::exports_for(&frames, &flight, &survey)?);
+            files.extend(gcp::exports_for(&frames, &flight, &survey).map_err(|e| e.to_string())?);
         }
         Ok::<_, String>(files)
     })

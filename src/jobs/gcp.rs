@@ -61,9 +61,18 @@ pub fn flight_exports(
     jobs: &[JobRecord],
     survey: &Survey,
     selection: Selection,
-) -> Result<Vec<(&'static str, String)>, String> {
-    let frames = load_frames(data, jobs, selection).map_err(|e| e.to_string())?;
-    exports_for(&frames, flight, survey)
+) -> Result<Vec<(&'static str, String)>, ExportError> {
+    let frames = load_frames(data, jobs, selection)?;
+    Ok(exports_for(&frames, flight, survey)?)
+}
+
+/// Why a flight's export files cannot be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error(transparent)]
+    Stored(#[from] StoredFileError),
+    #[error(transparent)]
+    Projection(#[from] export::ProjectionError),
 }
 
 /// Every export file from frame results already read.
@@ -71,7 +80,7 @@ pub fn exports_for(
     frames: &[FrameResult],
     flight: &FlightRecord,
     survey: &Survey,
-) -> Result<Vec<(&'static str, String)>, String> {
+) -> Result<Vec<(&'static str, String)>, export::ProjectionError> {
     let tolerance = flight
         .params
         .pixel_tolerance

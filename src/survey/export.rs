@@ -11,7 +11,7 @@ use std::fmt::Write;
 
 use serde_json::json;
 
-use crate::pipeline::georef::{Transformer, WGS84};
+use crate::pipeline::georef::{GeorefError, Transformer, WGS84};
 use crate::pipeline::output::csv_text;
 
 use super::matching::{point_reports, Matched, Observation, PointReport};
@@ -168,17 +168,20 @@ pub fn metashape_markers(survey: &Survey, matched: &Matched) -> String {
     out
 }
 
+/// The survey's points could not be brought to WGS84 (for the GeoJSON).
+#[derive(Debug, thiserror::Error)]
+#[error("survey to WGS84: {0}")]
+pub struct ProjectionError(#[from] GeorefError);
+
 /// Survey points as GeoJSON (WGS84 longitude, latitude) with their
 /// observation counts, deviations and warnings.
 pub fn survey_geojson(
     survey: &Survey,
     reports: &[PointReport],
     transformer: &mut Transformer,
-) -> Result<String, String> {
+) -> Result<String, ProjectionError> {
     let mut lonlat: Vec<(f64, f64)> = survey.points.iter().map(|p| (p.x, p.y)).collect();
-    transformer
-        .transform(&survey.crs, WGS84, &mut lonlat)
-        .map_err(|e| format!("survey to WGS84: {e}"))?;
+    transformer.transform(&survey.crs, WGS84, &mut lonlat)?;
     let features: Vec<serde_json::Value> = survey
         .points
         .iter()
@@ -324,7 +327,7 @@ pub fn all(
     matched: &Matched,
     tolerance_px: f64,
     transformer: &mut Transformer,
-) -> Result<Vec<(&'static str, String)>, String> {
+) -> Result<Vec<(&'static str, String)>, ProjectionError> {
     let reports = point_reports(survey, matched);
     Ok(vec![
         (FILES[0], gcp_list(survey, matched)),

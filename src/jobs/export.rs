@@ -14,15 +14,17 @@ use tokio::sync::watch;
 use tokio::time::Instant;
 
 use crate::pipeline::output::Format;
-use crate::storage::s3::{S3Url, S3};
-use crate::storage::DataDir;
+use crate::storage::s3::{S3Error, S3Url, S3};
+use crate::storage::{DataDir, StoredFileError};
+use crate::survey::export::ProjectionError;
+use crate::survey::parse::SurveyError;
 
 use super::gcp;
 use super::model::{FlightId, FlightRecord, JobRecord};
 use super::results::load_frames;
 use super::review::Selection;
 use super::store::Store;
-use crate::pipeline::georef::TargetCrs;
+use crate::pipeline::georef::{GeorefError, TargetCrs};
 use crate::pipeline::output::render;
 
 /// Attempts before an export is marked failed.
@@ -38,7 +40,9 @@ pub async fn run(store: Arc<Store>, data: DataDir, s3: Arc<S3>, mut stop: watch:
             if not_before.get(&flight.id).is_some_and(|t| *t > now) {
                 continue;
             }
-            let result = export(&data, &s3, &flight, jobs).await;
+            let result = export(&data, &s3, &flight, jobs)
+                .await
+                .map_err(|e| e.to_string());
             let attempts = flight.export.as_ref().map_or(0, |e| e.attempts) + 1;
             match &result {
                 Ok(()) => {
@@ -81,37 +85,55 @@ async fn export(
     s3: &S3,
     flight: &FlightRecord,
     jobs: Vec<JobRecord>,
-) -> Result<(), String> {
+) -> Result<(), WriteBackError> {
     let to = flight
         .export
         .as_ref()
         .map(|e| e.to.clone())
         .unwrap_or_default();
     let Ok(S3Url::Prefix { bucket, prefix }) = S3Url::parse(&to) else {
-        return Err(format!("{to:?} is not an s3://bucket/prefix/"));
+        return Err(WriteBackError::NotAPrefix(to));
     };
     let (data, flight) = (data.clone(), flight.clone());
     let files = tokio::task::spawn_blocking(move || {
         // The stored results are read once for every file.
-        let frames =
-            load_frames(&data, &jobs, Selection::NotRejected).map_err(|e| e.to_string())?;
-        let crs = TargetCrs::parse(&flight.params.crs).map_err(|e| format!("stored CRS: {e}"))?;
+        let frames = load_frames(&data, &jobs, Selection::NotRejected)?;
+        let crs = TargetCrs::parse(&flight.params.crs).map_err(WriteBackError::Crs)?;
         let mut files = vec![
             ("results.csv", render(Format::Csv, &frames, &crs)),
             ("results.geojson", render(Format::GeoJson, &frames, &crs)),
         ];
-        if let Some(stored) = gcp::load_survey(&data, flight.id).map_err(|e| e.to_string())? {
-            let survey = stored.parse().map_err(|e| format!("stored survey: {e}"))?;
-            files.extend(gcp::exports_for(&frames, &flight, &survey).map_err(|e| e.to_string())?);
+        if let Some(stored) = gcp::load_survey(&data, flight.id)? {
+            let survey = stored.parse().map_err(WriteBackError::Survey)?;
+            files.extend(gcp::exports_for(&frames, &flight, &survey)?);
         }
-        Ok::<_, String>(files)
+        Ok::<_, WriteBackError>(files)
     })
     .await
-    .map_err(|e| format!("rendering results: {e}"))??;
+    .map_err(|e| WriteBackError::Rendering(e.to_string()))??;
     for (name, text) in files {
         s3.put(&bucket, &format!("{prefix}{name}"), text.into_bytes())
-            .await
-            .map_err(|e| e.to_string())?;
+            .await?;
     }
     Ok(())
+}
+
+/// Why a flight's results could not be written back (kept on the flight as
+/// its export's last error, and retried with a back-off).
+#[derive(Debug, thiserror::Error)]
+enum WriteBackError {
+    #[error("{0:?} is not an s3://bucket/prefix/")]
+    NotAPrefix(String),
+    #[error(transparent)]
+    Stored(#[from] StoredFileError),
+    #[error("stored CRS: {0}")]
+    Crs(GeorefError),
+    #[error("stored survey: {0}")]
+    Survey(SurveyError),
+    #[error(transparent)]
+    Projection(#[from] ProjectionError),
+    #[error("rendering results: {0}")]
+    Rendering(String),
+    #[error(transparent)]
+    S3(#[from] S3Error),
 }

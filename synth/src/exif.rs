@@ -25,7 +25,7 @@ pub struct DroneMeta {
 
 /// Inserts EXIF and XMP into the JPEG at `path`.
 pub fn write_drone_meta(path: &Path, meta: &DroneMeta) -> Result<(), Error> {
-    let jpeg = std::fs::read(path).map_err(Error::io(path))?;
+    let jpeg = std::fs::read(path).map_err(Error::io("read", path))?;
     if !jpeg.starts_with(&[0xFF, 0xD8]) {
         return Err(Error::NotJpeg(path.to_path_buf()));
     }
@@ -41,7 +41,7 @@ pub fn write_drone_meta(path: &Path, meta: &DroneMeta) -> Result<(), Error> {
         .concat(),
     )?;
     out.extend_from_slice(&jpeg[2..]);
-    std::fs::write(path, out).map_err(Error::io(path))
+    std::fs::write(path, out).map_err(Error::io("write", path))
 }
 
 fn segment(out: &mut Vec<u8>, payload: &[u8]) -> Result<(), Error> {

@@ -50,8 +50,9 @@ pub enum Error {
         path: PathBuf,
         source: gdal::errors::GdalError,
     },
-    #[error("{path}: {source}")]
+    #[error("cannot {action} {path}: {source}")]
     Io {
+        action: &'static str,
         path: PathBuf,
         source: std::io::Error,
     },
@@ -62,8 +63,10 @@ pub enum Error {
 }
 
 impl Error {
-    fn io(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
+    /// `action` ("read", "write", "create") failed on `path`.
+    fn io<'a>(action: &'static str, path: &'a Path) -> impl FnOnce(std::io::Error) -> Error + 'a {
         move |source| Error::Io {
+            action,
             path: path.to_path_buf(),
             source,
         }
@@ -410,7 +413,7 @@ pub fn clutter_scene(width: usize, height: usize, seed: u64) -> Scene {
 
 /// Writes a flight of frames and `truth.csv` to `dir`; returns the count.
 pub fn write_flight(dir: &Path, spec: &FlightSpec) -> Result<usize, Error> {
-    std::fs::create_dir_all(dir).map_err(Error::io(dir))?;
+    std::fs::create_dir_all(dir).map_err(Error::io("create", dir))?;
     let mut truth = String::from("image,marker_type,marker_id,px_x,px_y,size_px\n");
     for i in 0..spec.frames {
         let seed = spec.seed * 1000 + i as u64;
@@ -437,6 +440,6 @@ pub fn write_flight(dir: &Path, spec: &FlightSpec) -> Result<usize, Error> {
         }
     }
     let csv = dir.join("truth.csv");
-    std::fs::write(&csv, truth).map_err(Error::io(&csv))?;
+    std::fs::write(&csv, truth).map_err(Error::io("write", &csv))?;
     Ok(spec.frames)
 }

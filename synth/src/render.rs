@@ -188,11 +188,13 @@ pub fn render_window(
         height: img.height,
         data: img.data,
     };
-    Ok((
-        region.window(x0 - rx0, y0 - ry0, width, height),
-        truths,
-        lookalikes,
-    ))
+    // The whole frame (no margin to cut) is returned as drawn, not copied.
+    let image = if (rx0, ry0, region.width, region.height) == (x0, y0, width, height) {
+        region
+    } else {
+        region.window(x0 - rx0, y0 - ry0, width, height)
+    };
+    Ok((image, truths, lookalikes))
 }
 
 /// Draws `scene` on `img`'s region.

@@ -19,6 +19,12 @@ pub struct ServeArgs {
     /// Folder for the job store, uploaded frames and results (created if missing).
     #[arg(long, env = "GCP_TAGGER_DATA_DIR", default_value = "gcp-tagger-data")]
     pub data_dir: PathBuf,
+    /// The job store: `postgres://user:password@host/db` for one queue shared by several replicas; default: SQLite in the data folder.
+    #[arg(long, env = "GCP_TAGGER_STORE")]
+    pub store: Option<String>,
+    /// Seconds a job's claim lasts without a heartbeat from its worker (sent every 0.25 s) before the job is queued again.
+    #[arg(long, env = "GCP_TAGGER_LEASE_SECS", default_value_t = 30)]
+    pub lease_secs: u64,
     /// Memory limit for the whole process, in GiB (default: half of the machine's or container's memory).
     #[arg(long, env = "GCP_TAGGER_MAX_RAM_GB")]
     pub max_ram_gb: Option<f64>,
@@ -164,6 +170,19 @@ impl ServeArgs {
             return Err(ConfigError(format!(
                 "--retention-hours must be 0 or positive, got {}",
                 self.retention_hours
+            )));
+        }
+        if let Some(url) = &self.store {
+            if !(url.starts_with("postgres://") || url.starts_with("postgresql://")) {
+                return Err(ConfigError(
+                    "--store must be a postgres:// or postgresql:// URL (leave it out for the embedded SQLite store)".into(),
+                ));
+            }
+        }
+        if self.lease_secs < 2 {
+            return Err(ConfigError(format!(
+                "--lease-secs must be at least 2 (workers renew every 0.25 s), got {}",
+                self.lease_secs
             )));
         }
         if self.s3_concurrency == 0 || self.s3_read_ahead == 0 || self.s3_timeout_secs == 0 {

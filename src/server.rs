@@ -16,7 +16,8 @@ use tokio::time::Instant;
 use crate::api::{self, AppState, HttpConfig, UploadLimits};
 use crate::config::ServeArgs;
 use crate::jobs::fetch::{self, FetchConfig};
-use crate::jobs::{export, retention, PoolConfig, Store, WorkerPool};
+use crate::jobs::store::{self, LeaseConfig};
+use crate::jobs::{export, retention, PoolConfig, WorkerPool};
 use crate::storage::header::PixelLimits;
 use crate::storage::s3::S3;
 use crate::storage::DataDir;
@@ -28,10 +29,14 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let max_ram_bytes = args.max_ram_bytes()?;
     let data = DataDir::open(&args.data_dir)?;
     let db_path = data.db_path();
-    let store = tokio::task::spawn_blocking(move || Store::open(&db_path))
+    let lease = LeaseConfig {
+        lease: std::time::Duration::from_secs(args.lease_secs),
+        ..LeaseConfig::default()
+    };
+    let url = args.store.clone();
+    let store = tokio::task::spawn_blocking(move || store::open(url.as_deref(), &db_path, lease))
         .await?
         .context("cannot open the job store")?;
-    let store = Arc::new(store);
     let metrics = Arc::new(Metrics::new());
     let pool = WorkerPool::start(
         store.clone(),
@@ -145,10 +150,10 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
 
     let grace = Duration::from_secs(args.shutdown_grace_secs);
     let deadline = Instant::now() + grace;
-    while store.stats().running > 0 && Instant::now() < deadline {
+    while store.stats()?.running > 0 && Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    let left = store.stats().running;
+    let left = store.stats()?.running;
     if left > 0 {
         tracing::warn!(
             jobs = left,

@@ -150,7 +150,7 @@ async fn submit_flight_inner(
         let max = state.limits.max_frames_per_flight;
         let (flight, jobs) = tokio::task::spawn_blocking(move || {
             let target = Target::NewFlight(Box::new(params), results_to);
-            upload::commit(&store, &data, upload, target, idem, max)
+            upload::commit(&*store, &data, upload, target, idem, max)
         })
         .await
         .map_err(|e| ApiError::internal("recording the flight", e))??;
@@ -236,7 +236,7 @@ async fn add_frames_inner(
         }
         name = Some(v.into_owned());
     }
-    if state.store.flight(id).is_none() {
+    if state.store.flight(id)?.is_none() {
         return Err(ApiError::not_found("flight", id));
     }
     if sources::is_json(&req) {
@@ -273,7 +273,7 @@ async fn add_frames_inner(
     let (store, data) = (state.store.clone(), state.data.clone());
     let max = state.limits.max_frames_per_flight;
     let (flight, jobs) = tokio::task::spawn_blocking(move || {
-        upload::commit(&store, &data, upload, Target::Flight(id), idem, max)
+        upload::commit(&*store, &data, upload, Target::Flight(id), idem, max)
     })
     .await
     .map_err(|e| ApiError::internal("recording the frames", e))??;
@@ -287,7 +287,15 @@ fn submitted(
     jobs: Vec<JobRecord>,
     skipped: Vec<String>,
 ) -> Response {
-    let all = state.store.flight_jobs(flight.id).unwrap_or_default();
+    // The flight's other jobs, as far as the store answers: the frames
+    // are recorded either way, so this answer must not fail for a read.
+    let all = match state.store.flight_jobs(flight.id) {
+        Ok(all) => all.unwrap_or_default(),
+        Err(e) => {
+            tracing::warn!(error = %e, "cannot read the flight back for the answer");
+            jobs.clone()
+        }
+    };
     let body = FlightSubmitted {
         flight: FlightView::new(&flight, &all),
         jobs: jobs.iter().map(JobView::new).collect(),
@@ -315,25 +323,32 @@ pub async fn list_flights(
     ApiQuery(q): ApiQuery<PageQuery>,
 ) -> Result<Json<FlightPage>, ApiError> {
     let limit = page_limit(q.limit)?;
-    let mut flights = state.store.flights(q.after, limit + 1);
+    let mut flights = state.store.flights(q.after, limit + 1)?;
     let next = (flights.len() > limit).then(|| {
         flights.truncate(limit);
         flights.last().map(|f| f.id)
     });
     let items = flights
         .iter()
-        .map(|f| FlightView::new(f, &state.store.flight_jobs(f.id).unwrap_or_default()))
-        .collect();
+        .map(|f| {
+            let jobs = state.store.flight_jobs(f.id)?.unwrap_or_default();
+            Ok(FlightView::new(f, &jobs))
+        })
+        .collect::<Result<_, ApiError>>()?;
     Ok(Json(FlightPage {
         items,
         next: next.flatten(),
     }))
 }
 
-fn flight_view(state: &AppState, id: Uuid) -> Option<FlightView> {
-    let flight = state.store.flight(id)?;
-    let jobs = state.store.flight_jobs(id)?;
-    Some(FlightView::new(&flight, &jobs))
+fn flight_view(state: &AppState, id: Uuid) -> Result<Option<FlightView>, ApiError> {
+    let Some(flight) = state.store.flight(id)? else {
+        return Ok(None);
+    };
+    let Some(jobs) = state.store.flight_jobs(id)? else {
+        return Ok(None);
+    };
+    Ok(Some(FlightView::new(&flight, &jobs)))
 }
 
 /// A flight's state and job counts; with `wait=N`, answers when every job
@@ -354,14 +369,15 @@ pub async fn get_flight(
     ApiQuery(q): ApiQuery<WaitQuery>,
 ) -> Result<Response, ApiError> {
     let wait = watch::wait_duration(q.wait)?;
-    if state.store.flight(id).is_none() {
+    if state.store.flight(id)?.is_none() {
         return Err(ApiError::not_found("flight", id));
     }
     watch::wait_until(&state, wait, || {
-        flight_view(&state, id).is_none_or(|f| f.state == FlightState::Finished)
+        // A store that does not answer ends the wait; the answer below says why.
+        flight_view(&state, id).map_or(true, |f| f.is_none_or(|f| f.state == FlightState::Finished))
     })
     .await;
-    let view = flight_view(&state, id).ok_or_else(|| ApiError::not_found("flight", id))?;
+    let view = flight_view(&state, id)?.ok_or_else(|| ApiError::not_found("flight", id))?;
     let finished = view.state == FlightState::Finished;
     Ok(watch::answer(Json(view), wait, finished))
 }
@@ -384,7 +400,7 @@ pub async fn flight_jobs(
     let limit = page_limit(q.limit)?;
     let jobs = state
         .store
-        .flight_jobs(id)
+        .flight_jobs(id)?
         .ok_or_else(|| ApiError::not_found("flight", id))?;
     let start = match q.after {
         Some(after) => jobs
@@ -416,12 +432,12 @@ pub async fn flight_events(
     State(state): State<AppState>,
     IdPath(id): IdPath,
 ) -> Result<Response, ApiError> {
-    if state.store.flight(id).is_none() {
+    if state.store.flight(id)?.is_none() {
         return Err(ApiError::not_found("flight", id));
     }
     let inner = state.clone();
     Ok(watch::event_stream(state, "flight", move || {
-        let view = flight_view(&inner, id)?;
+        let view = flight_view(&inner, id).ok()??;
         let json = serde_json::to_string(&view).expect("views serialize");
         Some((json, view.state == FlightState::Finished))
     })
@@ -437,9 +453,9 @@ async fn flight_results(
     let partial = q.partial.unwrap_or(false);
     let flight = state
         .store
-        .flight(id)
+        .flight(id)?
         .ok_or_else(|| ApiError::not_found("flight", id))?;
-    let jobs = state.store.flight_jobs(id).unwrap_or_default();
+    let jobs = state.store.flight_jobs(id)?.unwrap_or_default();
     let open = jobs.iter().filter(|j| !j.state.is_terminal()).count();
     if open > 0 && !partial {
         return Err(ApiError::new(ErrorCode::FlightNotFinished,
@@ -536,7 +552,7 @@ pub async fn cancel_flight(
         .await
         .map_err(|e| ApiError::internal("canceling", e))??
         .ok_or_else(|| ApiError::not_found("flight", id))?;
-    flight_view(&state, id)
+    flight_view(&state, id)?
         .map(Json)
         .ok_or_else(|| ApiError::not_found("flight", id))
 }

@@ -139,12 +139,12 @@ fn answer_for(state: &AppState, record: &IdemRecord, answer: Answer) -> Result<R
             "the submission this Idempotency-Key made has been deleted",
         )
     };
-    let jobs: Vec<JobView> = record
-        .jobs
-        .iter()
-        .filter_map(|id| state.store.job(*id))
-        .map(|j| JobView::new(&j))
-        .collect();
+    let mut jobs: Vec<JobView> = Vec::with_capacity(record.jobs.len());
+    for id in &record.jobs {
+        if let Some(job) = state.store.job(*id)? {
+            jobs.push(JobView::new(&job));
+        }
+    }
     let mut response = match answer {
         Answer::Job => {
             let job = jobs.into_iter().next().ok_or_else(gone)?;
@@ -157,8 +157,8 @@ fn answer_for(state: &AppState, record: &IdemRecord, answer: Answer) -> Result<R
                 .into_response()
         }
         Answer::Flight => {
-            let flight = state.store.flight(record.flight).ok_or_else(gone)?;
-            let all = state.store.flight_jobs(record.flight).unwrap_or_default();
+            let flight = state.store.flight(record.flight)?.ok_or_else(gone)?;
+            let all = state.store.flight_jobs(record.flight)?.unwrap_or_default();
             let body = FlightSubmitted {
                 flight: FlightView::new(&flight, &all),
                 jobs,

@@ -103,7 +103,7 @@ async fn submit_job_inner(
     let (store, data) = (state.store.clone(), state.data.clone());
     let (_, jobs) = tokio::task::spawn_blocking(move || {
         upload::commit(
-            &store,
+            &*store,
             &data,
             upload,
             Target::NewFlight(Box::new(params), None),
@@ -147,7 +147,7 @@ pub async fn list_jobs(
         state: q.state,
         after: q.after,
         limit: limit + 1,
-    });
+    })?;
     Ok(Json(page(items.iter().map(JobView::new).collect(), limit)))
 }
 
@@ -180,16 +180,20 @@ pub async fn get_job(
     ApiQuery(q): ApiQuery<WaitQuery>,
 ) -> Result<Response, ApiError> {
     let wait = watch::wait_duration(q.wait)?;
-    if state.store.job(id).is_none() {
+    if state.store.job(id)?.is_none() {
         return Err(ApiError::not_found("job", id));
     }
     watch::wait_until(&state, wait, || {
-        state.store.job(id).is_none_or(|j| j.state.is_terminal())
+        // A store that does not answer ends the wait; the answer below says why.
+        state
+            .store
+            .job(id)
+            .map_or(true, |j| j.is_none_or(|j| j.state.is_terminal()))
     })
     .await;
     let job = state
         .store
-        .job(id)
+        .job(id)?
         .ok_or_else(|| ApiError::not_found("job", id))?;
     let ended = job.state.is_terminal();
     Ok(watch::answer(Json(JobView::new(&job)), wait, ended))
@@ -210,12 +214,12 @@ pub async fn job_events(
     State(state): State<AppState>,
     IdPath(id): IdPath,
 ) -> Result<Response, ApiError> {
-    if state.store.job(id).is_none() {
+    if state.store.job(id)?.is_none() {
         return Err(ApiError::not_found("job", id));
     }
     let store = state.store.clone();
     Ok(watch::event_stream(state, "job", move || {
-        let job = store.job(id)?;
+        let job = store.job(id).ok()??;
         let json = serde_json::to_string(&JobView::new(&job)).expect("views serialize");
         Some((json, job.state.is_terminal()))
     })
@@ -225,7 +229,7 @@ pub async fn job_events(
 async fn job_results(state: AppState, id: Uuid, format: Format) -> Result<Response, ApiError> {
     let job = state
         .store
-        .job(id)
+        .job(id)?
         .ok_or_else(|| ApiError::not_found("job", id))?;
     if job.state != JobState::Succeeded {
         let why = job
@@ -243,7 +247,7 @@ async fn job_results(state: AppState, id: Uuid, format: Format) -> Result<Respon
     }
     let flight = state
         .store
-        .flight(job.flight_id)
+        .flight(job.flight_id)?
         .ok_or_else(|| ApiError::not_found("job", id))?;
     let stem = format!("job-{id}");
     results::render_jobs(

@@ -41,7 +41,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use utoipa_swagger_ui::SwaggerUi;
 
-use crate::jobs::Store;
+use crate::jobs::SharedStore;
 use crate::pipeline::memory::RamBudget;
 use crate::storage::s3::S3;
 use crate::storage::DataDir;
@@ -52,7 +52,7 @@ pub use upload::UploadLimits;
 /// Everything a handler can reach.
 #[derive(Clone)]
 pub struct AppState {
-    pub store: Arc<Store>,
+    pub store: SharedStore,
     pub data: DataDir,
     pub metrics: Arc<Metrics>,
     pub budget: Arc<RamBudget>,

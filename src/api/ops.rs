@@ -26,7 +26,8 @@ pub struct Health {
 #[utoipa::path(get, path = "/livez", tag = "operations", security(()),
     responses((status = 200, description = "Alive", body = Health)))]
 pub async fn livez(State(state): State<AppState>) -> Json<Health> {
-    let stats = state.store.stats();
+    // Alive whatever the store says; readiness checks the store.
+    let stats = state.store.stats().unwrap_or_default();
     Json(Health {
         status: "ok".into(),
         queued: stats.queued,
@@ -39,7 +40,7 @@ pub async fn livez(State(state): State<AppState>) -> Json<Health> {
 #[utoipa::path(get, path = "/readyz", tag = "operations", security(()),
     responses(
         (status = 200, description = "Ready", body = Health),
-        (status = 503, description = "Starting or shutting down", body = Problem, content_type = "application/problem+json"),
+        (status = 503, description = "Starting, shutting down, or the job store does not answer", body = Problem, content_type = "application/problem+json"),
     ))]
 pub async fn readyz(State(state): State<AppState>) -> Result<Json<Health>, ApiError> {
     if *state.shutdown.borrow() || !state.ready.load(Ordering::SeqCst) {
@@ -49,17 +50,29 @@ pub async fn readyz(State(state): State<AppState>) -> Result<Json<Health>, ApiEr
         )
         .with_header(header::RETRY_AFTER, "5"));
     }
-    Ok(livez(State(state)).await)
+    let stats = state.store.stats().map_err(|e| {
+        ApiError::new(
+            ErrorCode::NotReady,
+            format!("the job store does not answer: {e}"),
+        )
+        .with_header(header::RETRY_AFTER, "5")
+    })?;
+    Ok(Json(Health {
+        status: "ok".into(),
+        queued: stats.queued,
+        running: stats.running,
+    }))
 }
 
 /// Prometheus metrics (OpenMetrics text).
 #[utoipa::path(get, path = "/metrics", tag = "operations",
     responses((status = 200, description = "Metrics", content_type = "application/openmetrics-text", body = String)))]
 pub async fn metrics(State(state): State<AppState>) -> Response {
-    let stats = state.store.stats();
     let m = &state.metrics;
-    m.queue_depth.set(stats.queued as i64);
-    m.jobs_running.set(stats.running as i64);
+    if let Ok(stats) = state.store.stats() {
+        m.queue_depth.set(stats.queued as i64);
+        m.jobs_running.set(stats.running as i64);
+    }
     m.budget_in_use_bytes.set(state.budget.in_use() as i64);
     (
         [(

@@ -123,11 +123,11 @@ pub async fn flight_observations(
 ) -> Result<Json<ObservationList>, ApiError> {
     let flight = state
         .store
-        .flight(id)
+        .flight(id)?
         .ok_or_else(|| ApiError::not_found("flight", id))?;
     let mut jobs: Vec<JobRecord> = state
         .store
-        .flight_jobs(id)
+        .flight_jobs(id)?
         .unwrap_or_default()
         .into_iter()
         .filter(|j| j.state == JobState::Succeeded)
@@ -185,7 +185,7 @@ fn gcp_names(
 fn succeeded(state: &AppState, id: Uuid) -> Result<JobRecord, ApiError> {
     let job = state
         .store
-        .job(id)
+        .job(id)?
         .ok_or_else(|| ApiError::not_found("job", id))?;
     if job.state != JobState::Succeeded {
         return Err(ApiError::new(

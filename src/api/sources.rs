@@ -152,8 +152,8 @@ pub async fn commit(
     let (store, max) = (state.store.clone(), state.limits.max_frames_per_flight);
     tokio::task::spawn_blocking(move || {
         let names = jobs.iter().map(|j| j.image.as_str());
-        upload::check_names(&store, &target, names, max)?;
-        upload::record(&store, &jobs, target, idem.as_ref(), max)
+        upload::check_names(&*store, &target, names, max)?;
+        upload::record(&*store, &jobs, target, idem.as_ref(), max)
     })
     .await
     .map_err(|e| ApiError::internal("recording the jobs", e))?

@@ -113,7 +113,7 @@ pub async fn put_survey(
         }
         crs = Some(v.into_owned());
     }
-    if state.store.flight(id).is_none() {
+    if state.store.flight(id)?.is_none() {
         return Err(ApiError::not_found("flight", id));
     }
     let text = text_body(&body, "survey", ErrorCode::InvalidSurvey)?;
@@ -159,7 +159,7 @@ pub async fn put_assignments(
     body: Bytes,
 ) -> Result<Json<AssignmentsSummary>, ApiError> {
     let text = text_body(&body, "assignment file", ErrorCode::InvalidAssignments)?;
-    if state.store.flight(id).is_none() {
+    if state.store.flight(id)?.is_none() {
         return Err(ApiError::not_found("flight", id));
     }
     let data = state.data.clone();
@@ -206,7 +206,7 @@ pub async fn get_survey(
 }
 
 async fn flight_survey(state: &AppState, id: Uuid) -> Result<Survey, ApiError> {
-    if state.store.flight(id).is_none() {
+    if state.store.flight(id)?.is_none() {
         return Err(ApiError::not_found("flight", id));
     }
     let data = state.data.clone();
@@ -259,10 +259,10 @@ pub async fn get_export(
     }
     let flight = state
         .store
-        .flight(id)
+        .flight(id)?
         .ok_or_else(|| ApiError::not_found("flight", id))?;
     let survey = flight_survey(&state, id).await?;
-    let jobs = state.store.flight_jobs(id).unwrap_or_default();
+    let jobs = state.store.flight_jobs(id)?.unwrap_or_default();
     let open = jobs.iter().filter(|j| !j.state.is_terminal()).count();
     if open > 0 && !q.partial.unwrap_or(false) {
         return Err(ApiError::new(ErrorCode::FlightNotFinished,

@@ -390,13 +390,13 @@ pub enum Target {
 /// (names identify frames in results), and a flight that would grow past
 /// `max_frames` frames.
 pub fn check_names<'a>(
-    store: &crate::jobs::Store,
+    store: &dyn crate::jobs::JobStore,
     target: &Target,
     names: impl Iterator<Item = &'a str>,
     max_frames: usize,
 ) -> Result<(), ApiError> {
     let mut seen: std::collections::HashSet<String> = match target {
-        Target::Flight(id) => store.flight_images(*id).into_iter().collect(),
+        Target::Flight(id) => store.flight_images(*id)?.into_iter().collect(),
         Target::NewFlight(..) => Default::default(),
     };
     let names: Vec<&str> = names.collect();
@@ -425,35 +425,31 @@ pub fn check_names<'a>(
 /// [`check_names`] runs before the upload is moved into place, and two
 /// requests may pass it at once).
 pub fn record(
-    store: &crate::jobs::Store,
+    store: &dyn crate::jobs::JobStore,
     jobs: &[NewJob],
     target: Target,
     idem: Option<&IdemKey>,
     max_frames: usize,
 ) -> Result<(FlightRecord, Vec<JobRecord>), ApiError> {
     let recorded = match target {
-        Target::NewFlight(params, export_to) => store
-            .create_flight(&params, jobs, export_to, idem)
-            .map(|f| {
-                let jobs = store.flight_jobs(f.id).unwrap_or_default();
-                Some((f, jobs))
-            }),
-        Target::Flight(id) => store
-            .add_to_flight(id, jobs, idem, max_frames)
-            .map(|r| r.and_then(|jobs| Some((store.flight(id)?, jobs)))),
+        Target::NewFlight(params, export_to) => {
+            let flight = store.create_flight(&params, jobs, export_to, idem)?;
+            let jobs = store.flight_jobs(flight.id)?.unwrap_or_default();
+            Some((flight, jobs))
+        }
+        Target::Flight(id) => match store.add_to_flight(id, jobs, idem, max_frames)? {
+            Some(jobs) => store.flight(id)?.map(|flight| (flight, jobs)),
+            None => None,
+        },
     };
-    match recorded {
-        Ok(Some(done)) => Ok(done),
-        Ok(None) => Err(ApiError::not_found("flight", "(deleted meanwhile)")),
-        Err(e) => Err(e.into()),
-    }
+    recorded.ok_or_else(|| ApiError::not_found("flight", "(deleted meanwhile)"))
 }
 
 /// Moves an upload's frames into place and records them as jobs, in one
 /// store transaction. Refused parts become failed jobs with their reason,
 /// so the rest of a flight goes on. Runs on a blocking thread.
 pub fn commit(
-    store: &crate::jobs::Store,
+    store: &dyn crate::jobs::JobStore,
     data: &DataDir,
     mut upload: Upload,
     target: Target,

@@ -23,7 +23,7 @@ use super::gcp;
 use super::model::{FlightId, FlightRecord, JobRecord};
 use super::results::load_frames;
 use super::review::Selection;
-use super::store::Store;
+use super::store::SharedStore;
 use crate::pipeline::georef::{GeorefError, TargetCrs};
 use crate::pipeline::output::render;
 
@@ -31,12 +31,18 @@ use crate::pipeline::output::render;
 pub const MAX_ATTEMPTS: u32 = 5;
 
 /// Runs until `stop` turns true.
-pub async fn run(store: Arc<Store>, data: DataDir, s3: Arc<S3>, mut stop: watch::Receiver<bool>) {
+pub async fn run(store: SharedStore, data: DataDir, s3: Arc<S3>, mut stop: watch::Receiver<bool>) {
     let mut changes = store.subscribe();
     let mut not_before: HashMap<FlightId, Instant> = HashMap::new();
     loop {
         let now = Instant::now();
-        for (flight, jobs) in store.exports_due() {
+        let mut retry = None;
+        let due = store.exports_due().unwrap_or_else(|e| {
+            tracing::warn!(error = %e, "cannot list the exports due; trying again in a second");
+            retry = Some(now + Duration::from_secs(1));
+            Vec::new()
+        });
+        for (flight, jobs) in due {
             if not_before.get(&flight.id).is_some_and(|t| *t > now) {
                 continue;
             }
@@ -59,7 +65,7 @@ pub async fn run(store: Arc<Store>, data: DataDir, s3: Arc<S3>, mut stop: watch:
                 tracing::error!(error = %e, "cannot record an export");
             }
         }
-        let wake = not_before.values().min().copied();
+        let wake = not_before.values().copied().chain(retry).min();
         tokio::select! {
             _ = stop.wait_for(|s| *s) => break,
             changed = changes.changed() => {

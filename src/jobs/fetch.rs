@@ -23,7 +23,7 @@ use crate::storage::spool::{magic_hex, sniff_image};
 use crate::storage::DataDir;
 
 use super::model::{JobError, JobId, JobRecord};
-use super::store::Store;
+use super::store::SharedStore;
 
 /// Fetcher settings.
 #[derive(Debug, Clone)]
@@ -38,7 +38,7 @@ pub struct FetchConfig {
 
 /// Runs until `stop` turns true.
 pub async fn run(
-    store: Arc<Store>,
+    store: SharedStore,
     data: DataDir,
     s3: Arc<S3>,
     config: FetchConfig,
@@ -48,13 +48,28 @@ pub async fn run(
     let mut running: JoinSet<JobId> = JoinSet::new();
     let mut in_flight: HashSet<JobId> = HashSet::new();
     loop {
-        let waiting = store.stats().fetched + in_flight.len();
+        // A store that does not answer: look again in a second.
+        let mut retry = false;
+        let waiting = match store.stats() {
+            Ok(stats) => stats.fetched + in_flight.len(),
+            Err(e) => {
+                tracing::warn!(error = %e, "cannot read the queue; trying again in a second");
+                retry = true;
+                usize::MAX
+            }
+        };
         let room = config
             .concurrency
             .saturating_sub(in_flight.len())
             .min(config.read_ahead.saturating_sub(waiting));
         if room > 0 {
-            let next = store.to_fetch(in_flight.len() + room);
+            let next = store
+                .to_fetch(in_flight.len() + room)
+                .unwrap_or_else(|e| {
+                    tracing::warn!(error = %e, "cannot list the frames to fetch; trying again in a second");
+                    retry = true;
+                    Vec::new()
+                });
             for job in next {
                 if !in_flight.insert(job.id) {
                     continue;
@@ -93,13 +108,14 @@ pub async fn run(
                     break;
                 }
             }
+            _ = tokio::time::sleep(std::time::Duration::from_secs(1)), if retry => {}
         }
     }
     running.shutdown().await;
 }
 
 struct FetchTask {
-    store: Arc<Store>,
+    store: SharedStore,
     data: DataDir,
     s3: Arc<S3>,
     max_frame_bytes: u64,

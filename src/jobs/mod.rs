@@ -17,4 +17,4 @@ pub mod store;
 pub use model::{FlightId, FlightRecord, FlightState, JobError, JobId, JobRecord, JobState};
 pub use params::JobParams;
 pub use pool::{PoolConfig, WorkerPool};
-pub use store::{IdemKey, IdemRecord, JobFilter, NewJob, Store, StoreError};
+pub use store::{IdemKey, IdemRecord, JobFilter, JobStore, NewJob, SharedStore, StoreError};

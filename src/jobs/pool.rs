@@ -18,7 +18,7 @@ use crate::telemetry::{Metrics, OutcomeLabels};
 
 use super::isolate::{cpu_limit_secs, ChildLine, Heard, JobChild, JobOrder};
 use super::model::{JobError, JobRecord};
-use super::store::{Claim, Outcome, Store};
+use super::store::{Claim, Finished, LeaseState, Outcome, Progress, SharedStore};
 use crate::error_code::ErrorCode;
 
 /// How long an idle worker waits before re-checking the stop flag.
@@ -27,8 +27,13 @@ const IDLE_WAIT: Duration = Duration::from_millis(250);
 /// How often a worker looks at cancel and stop flags while its child runs.
 const POLL: Duration = Duration::from_millis(100);
 
-/// Workers a frame may kill before its job fails instead of being retried.
-pub const MAX_ATTEMPTS: u32 = 3;
+/// Workers a frame may kill before its job fails instead of being retried
+/// (the store's claims count the same way).
+pub use super::store::MAX_ATTEMPTS;
+
+/// How often a running job's worker renews its lease, reports progress and
+/// learns of a cancel.
+const HEARTBEAT: Duration = Duration::from_millis(250);
 
 /// Free space on the data folder's disk below which workers start no job:
 /// a job needs room for its result file and the store's log (kilobytes to
@@ -104,13 +109,13 @@ pub struct WorkerPool {
     stop_claiming: Arc<AtomicBool>,
     abort: Arc<AtomicBool>,
     budget: Arc<RamBudget>,
-    store: Arc<Store>,
+    store: SharedStore,
 }
 
 impl WorkerPool {
     /// Starts `config.workers` threads on `store`'s queue.
     pub fn start(
-        store: Arc<Store>,
+        store: SharedStore,
         data: DataDir,
         metrics: Arc<Metrics>,
         config: &PoolConfig,
@@ -190,10 +195,25 @@ impl WorkerPool {
     }
 }
 
+/// A running job's heartbeat: when it last went and what it reports.
+struct Beat {
+    last: Option<Instant>,
+    progress: Progress,
+}
+
+impl Beat {
+    fn new() -> Beat {
+        Beat {
+            last: None,
+            progress: Progress::default(),
+        }
+    }
+}
+
 struct Worker {
     /// The worker process, kept between jobs (dropped: killed).
     child: Option<JobChild>,
-    store: Arc<Store>,
+    store: SharedStore,
     data: DataDir,
     metrics: Arc<Metrics>,
     budget: Arc<RamBudget>,
@@ -261,7 +281,10 @@ impl Worker {
         let span = tracing::info_span!("job", job.id = %job.id, image = %job.image);
         let _enter = span.enter();
         let started = Instant::now();
-        let (outcome, megapixels) = self.execute(&claim);
+        let Some((outcome, megapixels)) = self.execute(&claim) else {
+            tracing::warn!("the job's lease was lost (expired or deleted): another claim runs it");
+            return;
+        };
         let label = match &outcome {
             Outcome::Succeeded { targets, .. } => {
                 tracing::info!(targets, "job succeeded");
@@ -283,16 +306,19 @@ impl Worker {
         if matches!(outcome, Outcome::Succeeded { .. }) {
             self.metrics.megapixels.inc_by(megapixels);
         }
-        match self.record_end(job.id, &outcome) {
+        match self.record_end(&claim, &outcome) {
             // A frame fetched from object storage is still there: the
             // local copy goes once the job has ended, so a long flight
             // does not fill the disk.
-            Some(true) if job.source.is_some() && !matches!(outcome, Outcome::Interrupted) => {
+            Some(Finished::Recorded)
+                if job.source.is_some() && !matches!(outcome, Outcome::Interrupted) =>
+            {
                 self.data.remove_frame(job.id, &job.ext)
             }
-            Some(true) | None => {}
+            // Lost: the job's files belong to the claim that has it now.
+            Some(Finished::Recorded | Finished::Lost) | None => {}
             // Deleted while it ran: drop what it wrote.
-            Some(false) => self.data.remove_job_files(job.id, &job.ext),
+            Some(Finished::Deleted) => self.data.remove_job_files(job.id, &job.ext),
         }
     }
 
@@ -301,10 +327,10 @@ impl Worker {
     /// server stops meanwhile, the job is put back in the queue in memory
     /// only (the store still says running, which the next start requeues),
     /// so shutdown does not wait for it; None then.
-    fn record_end(&self, id: super::model::JobId, outcome: &Outcome) -> Option<bool> {
+    fn record_end(&self, claim: &Claim, outcome: &Outcome) -> Option<Finished> {
         let mut tries = Backoff::default();
         loop {
-            match self.store.finish(id, outcome) {
+            match self.store.finish(&claim.lease, outcome) {
                 Ok(changed) => {
                     tries.recovered("the job's end is recorded");
                     return Some(changed);
@@ -312,7 +338,7 @@ impl Worker {
                 Err(e) => {
                     if self.stop_claiming.load(Ordering::SeqCst) {
                         tracing::error!(error = %e, "cannot record the job's end while stopping: it runs again at the next start");
-                        self.store.release_unrecorded(id);
+                        self.store.release_unrecorded(&claim.lease);
                         return None;
                     }
                     let wait = tries.failed("cannot record the job's end; retrying", &e);
@@ -326,11 +352,13 @@ impl Worker {
     }
 
     /// Runs a claimed job in a child process (see [`super::isolate`]);
-    /// returns its outcome and the frame's megapixels.
-    fn execute(&mut self, claim: &Claim) -> (Outcome, f64) {
+    /// returns its outcome and the frame's megapixels, or `None` if the
+    /// lease was lost meanwhile (the child is stopped; nothing to record).
+    fn execute(&mut self, claim: &Claim) -> Option<(Outcome, f64)> {
         let job = &claim.job;
-        let fail =
-            |code: ErrorCode, message: String| (Outcome::Failed(JobError { code, message }), 0.0);
+        let fail = |code: ErrorCode, message: String| {
+            Some((Outcome::Failed(JobError { code, message }), 0.0))
+        };
         let frame = self.data.frame_path(job.id, &job.ext);
         let result = self.data.result_path(job.id);
         // The worker's process, kept from its last job, or a fresh one.
@@ -369,20 +397,20 @@ impl Worker {
         let mut megapixels = 0.0;
         let mut warnings = Vec::new();
         let mut permit = None;
+        let mut beat = Beat::new();
         loop {
-            let line = match child.next_line(POLL) {
+            let heard = child.next_line(POLL);
+            if let Some(stop) = self.beat(claim, &mut beat, false) {
+                child.kill();
+                return stop;
+            }
+            if self.abort.load(Ordering::SeqCst) && !matches!(heard, Heard::Ended) {
+                child.kill();
+                return Some((Outcome::Interrupted, 0.0));
+            }
+            let line = match heard {
                 Heard::Line(line) => line,
-                Heard::Nothing => {
-                    if claim.cancel.load(Ordering::SeqCst) {
-                        child.kill();
-                        return (Outcome::Canceled, 0.0);
-                    }
-                    if self.abort.load(Ordering::SeqCst) {
-                        child.kill();
-                        return (Outcome::Interrupted, 0.0);
-                    }
-                    continue;
-                }
+                Heard::Nothing => continue,
                 Heard::Ended => break,
             };
             tracing::debug!(%line, "from the worker process");
@@ -396,14 +424,25 @@ impl Worker {
                         return fail(ErrorCode::FrameTooLarge, e.to_string());
                     }
                     megapixels = width as f64 * height as f64 / 1e6;
-                    self.store.progress(job.id, Some((width, height)), 0, 0);
-                    match self.budget.acquire(need) {
-                        Ok(p) => permit = Some(p),
-                        Err(e) => return fail(ErrorCode::FrameTooLarge, e.to_string()),
+                    beat.progress.size = Some((width, height));
+                    // Waiting for memory renews the lease too.
+                    loop {
+                        if let Some(stop) = self.beat(claim, &mut beat, true) {
+                            child.kill();
+                            return stop;
+                        }
+                        match self.budget.acquire_within(need, HEARTBEAT) {
+                            Ok(Some(p)) => {
+                                permit = Some(p);
+                                break;
+                            }
+                            Ok(None) => {}
+                            Err(e) => return fail(ErrorCode::FrameTooLarge, e.to_string()),
+                        }
                     }
                     if self.stop_claiming.load(Ordering::SeqCst) {
                         // Shutting down: waiting for memory was the whole run.
-                        return (Outcome::Interrupted, 0.0);
+                        return Some((Outcome::Interrupted, 0.0));
                     }
                     let data_limit = need + CHILD_HEADROOM_BYTES;
                     if let Err(e) = child.go(data_limit, cpu_limit_secs(width, height)) {
@@ -411,7 +450,8 @@ impl Worker {
                     }
                 }
                 Some(ChildLine::Tile { done, total }) => {
-                    self.store.progress(job.id, None, done, total)
+                    beat.progress.tiles_done = done;
+                    beat.progress.tiles_total = total;
                 }
                 Some(ChildLine::Warning { message }) => warnings.push(message),
                 Some(ChildLine::Done {
@@ -421,7 +461,7 @@ impl Worker {
                 }) => {
                     drop(permit);
                     self.child = Some(child);
-                    return (
+                    return Some((
                         Outcome::Succeeded {
                             width,
                             height,
@@ -429,7 +469,7 @@ impl Worker {
                             warnings,
                         },
                         megapixels,
-                    );
+                    ));
                 }
                 Some(ChildLine::Error { code, message }) => {
                     self.child = Some(child);
@@ -437,7 +477,7 @@ impl Worker {
                         // The server's disk, not the frame: the job goes
                         // back to the queue and waits for space.
                         tracing::warn!(%message, "the disk is full: the job goes back to the queue");
-                        return (Outcome::Interrupted, 0.0);
+                        return Some((Outcome::Interrupted, 0.0));
                     }
                     return fail(code, message);
                 }
@@ -445,16 +485,37 @@ impl Worker {
             }
         }
         drop(permit);
-        if claim.cancel.load(Ordering::SeqCst) {
-            return (Outcome::Canceled, 0.0);
+        if let Some(stop) = self.beat(claim, &mut beat, true) {
+            return stop;
         }
         if self.abort.load(Ordering::SeqCst) {
-            return (Outcome::Interrupted, 0.0);
+            return Some((Outcome::Interrupted, 0.0));
         }
         let end = child
             .wait_abnormal()
             .unwrap_or_else(|| "ended without a result".into());
-        self.crashed(job, &end)
+        Some(self.crashed(job, &end))
+    }
+
+    /// Renews the claim's lease and reports progress, at most every
+    /// [`HEARTBEAT`] unless `now`; says how the job stops if it must: a
+    /// cancel asked for (`Some(Some(Canceled))`) or the lease lost
+    /// (`Some(None)`). A store that cannot answer is logged and the job
+    /// goes on (its lease expires if that lasts).
+    fn beat(&self, claim: &Claim, beat: &mut Beat, now: bool) -> Option<Option<(Outcome, f64)>> {
+        if !now && beat.last.is_some_and(|t| t.elapsed() < HEARTBEAT) {
+            return None;
+        }
+        beat.last = Some(Instant::now());
+        match self.store.heartbeat(&claim.lease, &beat.progress) {
+            Ok(LeaseState::Held { cancel: false }) => None,
+            Ok(LeaseState::Held { cancel: true }) => Some(Some((Outcome::Canceled, 0.0))),
+            Ok(LeaseState::Lost) => Some(None),
+            Err(e) => {
+                tracing::warn!(error = %e, "cannot renew the job's lease");
+                None
+            }
+        }
     }
 
     /// A worker process died: the job goes back to the queue, or fails

@@ -4,7 +4,6 @@
 //! periodically; flights still running, or with results still to write to
 //! object storage, are never touched.
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::sync::watch;
@@ -12,12 +11,12 @@ use tokio::sync::watch;
 use crate::storage::DataDir;
 
 use super::model::now_millis;
-use super::store::Store;
+use super::store::SharedStore;
 
 /// Removes the flights that ended more than `keep` ago, every `keep / 2`
 /// (between 1 s and 10 min), until `stop`.
 pub async fn run(
-    store: Arc<Store>,
+    store: SharedStore,
     data: DataDir,
     keep: Duration,
     mut stop: watch::Receiver<bool>,
@@ -26,7 +25,7 @@ pub async fn run(
     loop {
         let (store, data) = (store.clone(), data.clone());
         let cutoff = now_millis() - keep.as_millis() as i64;
-        let swept = tokio::task::spawn_blocking(move || sweep(&store, &data, cutoff)).await;
+        let swept = tokio::task::spawn_blocking(move || sweep(&*store, &data, cutoff)).await;
         match swept {
             Ok(0) => {}
             Ok(n) => tracing::info!(flights = n, "removed flights past their retention time"),
@@ -40,9 +39,13 @@ pub async fn run(
 }
 
 /// Removes every flight that ended before `cutoff`; returns how many.
-pub fn sweep(store: &Store, data: &DataDir, cutoff: i64) -> usize {
+pub fn sweep(store: &dyn super::store::JobStore, data: &DataDir, cutoff: i64) -> usize {
     let mut removed = 0;
-    for id in store.expired_flights(cutoff) {
+    let expired = store.expired_flights(cutoff).unwrap_or_else(|e| {
+        tracing::error!(error = %e, "cannot list the expired flights");
+        Vec::new()
+    });
+    for id in expired {
         match store.delete_flight(id) {
             Ok(Some(jobs)) => {
                 for job in &jobs {

@@ -113,6 +113,35 @@ impl RamBudget {
             bytes,
         })
     }
+
+    /// As [`RamBudget::acquire`], waiting at most `wait`: `Ok(None)` if the
+    /// memory did not come free meanwhile (a caller that must do something
+    /// else while it waits, such as renewing a lease, calls again).
+    pub fn acquire_within(
+        &self,
+        bytes: u64,
+        wait: std::time::Duration,
+    ) -> Result<Option<Permit<'_>>, TooLarge> {
+        if bytes > self.capacity {
+            return Err(TooLarge {
+                need_mib: bytes.div_ceil(MIB),
+                budget_mib: self.capacity / MIB,
+            });
+        }
+        let free = self.free.lock().expect("budget lock");
+        let (mut free, _) = self
+            .freed
+            .wait_timeout_while(free, wait, |free| *free < bytes)
+            .expect("budget lock");
+        if *free < bytes {
+            return Ok(None);
+        }
+        *free -= bytes;
+        Ok(Some(Permit {
+            budget: self,
+            bytes,
+        }))
+    }
 }
 
 impl Drop for Permit<'_> {

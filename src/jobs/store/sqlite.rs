@@ -1,127 +1,24 @@
-//! The job store: every flight and job, their states and the queue.
+//! The embedded job store: SQLite in the data folder, owned by one process.
 //!
 //! Reads are served from memory (status requests stay fast while workers
 //! write); every submission and state change is first committed to SQLite
-//! in WAL mode, so a restart finds the queue as it was. Progress (tiles
-//! done) lives in memory only. Writers hold the database lock while they
-//! update memory, so memory always follows the database's order.
-//!
-//! The whole interface is this type's public methods: a later backend
-//! (PostgreSQL for replicas sharing one queue) replaces this file only.
+//! in WAL mode, so a restart finds the queue as it was. Leases, progress
+//! (tiles done) and cancel requests of running jobs live in memory: they
+//! concern only this process's workers, and a restart queues every job that
+//! was running. Writers hold the database lock while they update memory, so
+//! memory always follows the database's order.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
-use std::time::Duration;
+use std::sync::{Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use rusqlite::{params, Connection};
 use tokio::sync::watch;
 
-use super::model::*;
-use super::params::JobParams;
-
-/// Store failures: the database could not be read or written.
-#[derive(Debug, thiserror::Error)]
-pub enum StoreError {
-    #[error("job store: {0}")]
-    Db(#[from] rusqlite::Error),
-    #[error("job store: bad record: {0}")]
-    Corrupt(String),
-    /// The data folder was written by a newer build, whose schema steps
-    /// this one does not know.
-    #[error("its schema is version {found}, newer than this build's {supported}: run a newer gcp-tagger on this data folder")]
-    NewerSchema { found: u32, supported: u32 },
-    /// Another request with the same Idempotency-Key committed first.
-    #[error("job store: idempotency key already used")]
-    KeyTaken,
-    /// A frame of this name is in the flight already (or twice in the
-    /// request): names identify frames in results.
-    #[error(
-        "{0}: a frame of this name is already in the flight; names identify frames in results"
-    )]
-    DuplicateImage(String),
-    /// The flight would grow past its limit.
-    #[error("the flight would hold {would} frames, more than the {max} allowed (--max-frames-per-flight)")]
-    TooManyFrames { would: usize, max: usize },
-}
-
-/// A client's `Idempotency-Key` and the request it came with.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct IdemKey {
-    /// The key, scoped to the client's credentials.
-    pub key: String,
-    /// Method, route and query of the request, to refuse a key reused for
-    /// another request.
-    pub request: String,
-}
-
-/// What the first request with a key created.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct IdemRecord {
-    pub request: String,
-    pub flight: FlightId,
-    pub jobs: Vec<JobId>,
-}
-
-/// A job to create: a frame already in the spool.
-#[derive(Debug, Clone)]
-pub struct NewJob {
-    pub id: JobId,
-    pub image: String,
-    pub ext: String,
-    pub bytes: u64,
-    /// Set for uploads refused at submission: the job is created failed.
-    pub rejected: Option<JobError>,
-    /// For a frame in object storage: its `s3://` URL and ETag. The job
-    /// starts `fetching` and is queued once the frame is in the spool.
-    pub source: Option<(String, Option<String>)>,
-}
-
-/// A job handed to a worker.
-#[derive(Debug, Clone)]
-pub struct Claim {
-    pub job: JobRecord,
-    pub params: JobParams,
-    /// Set when the job is canceled or deleted while running.
-    pub cancel: Arc<AtomicBool>,
-}
-
-/// How a claimed job ended.
-#[derive(Debug, Clone)]
-pub enum Outcome {
-    Succeeded {
-        width: u32,
-        height: u32,
-        targets: u32,
-        /// What did not stop the frame but the user should hear.
-        warnings: Vec<String>,
-    },
-    Failed(JobError),
-    Canceled,
-    /// Stopped by shutdown: back to the queue for the next start.
-    Interrupted,
-}
-
-/// Filters for listing jobs.
-#[derive(Debug, Clone, Default)]
-pub struct JobFilter {
-    pub flight: Option<FlightId>,
-    pub state: Option<JobState>,
-    /// Only jobs with an id after this one (pagination cursor).
-    pub after: Option<JobId>,
-    pub limit: usize,
-}
-
-/// Queue figures for metrics and readiness.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct QueueStats {
-    pub fetching: usize,
-    /// Queued jobs whose frame was fetched from object storage.
-    pub fetched: usize,
-    pub queued: usize,
-    pub running: usize,
-}
+use super::*;
+use crate::error_code::ErrorCode;
 
 #[derive(Default)]
 struct State {
@@ -133,12 +30,20 @@ struct State {
     queue: BTreeSet<(i64, JobId)>,
     /// Jobs waiting for their frame from object storage, in queue order.
     fetching: BTreeSet<(i64, JobId)>,
-    cancel: HashMap<JobId, Arc<AtomicBool>>,
+    /// Leases of running jobs.
+    leases: HashMap<JobId, Held>,
     running: usize,
 }
 
-/// The job store; share it in an `Arc`.
-pub struct Store {
+/// A running job's lease, as this process holds it.
+struct Held {
+    token: uuid::Uuid,
+    until: Instant,
+}
+
+/// The SQLite job store; share it in an `Arc`.
+pub struct SqliteStore {
+    lease: LeaseConfig,
     db: Mutex<Connection>,
     state: Mutex<State>,
     /// Signalled when a job is queued (workers wait on it).
@@ -264,10 +169,15 @@ fn add_missing_columns(conn: &Connection) -> Result<(), StoreError> {
     Ok(())
 }
 
-impl Store {
+impl SqliteStore {
+    /// Opens (or creates) the store at `path` with the default leases.
+    pub fn open(path: &Path) -> Result<SqliteStore, StoreError> {
+        SqliteStore::open_with(path, LeaseConfig::default())
+    }
+
     /// Opens (or creates) the store at `path` and loads it. Jobs that were
     /// running when the process stopped go back to the queue.
-    pub fn open(path: &Path) -> Result<Store, StoreError> {
+    pub fn open_with(path: &Path, lease: LeaseConfig) -> Result<SqliteStore, StoreError> {
         let mut conn = Connection::open(path)?;
         // WAL: readers never block the writer; FULL: a commit is on disk
         // before the client hears "created".
@@ -293,7 +203,8 @@ impl Store {
             queued = state.queue.len(),
             "job store loaded"
         );
-        Ok(Store {
+        Ok(SqliteStore {
+            lease,
             db: Mutex::new(conn),
             state: Mutex::new(state),
             work: Condvar::new(),
@@ -313,15 +224,57 @@ impl Store {
         self.changed.send_modify(|v| *v = v.wrapping_add(1));
     }
 
+    /// Puts jobs whose lease expired back in the queue, or fails them on
+    /// their last attempt. Called with both locks held.
+    fn reap_expired(&self, db: &Connection, state: &mut State) -> Result<(), StoreError> {
+        let now = Instant::now();
+        let expired: Vec<JobId> = state
+            .leases
+            .iter()
+            .filter(|(_, held)| held.until <= now)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in expired {
+            state.leases.remove(&id);
+            state.running -= 1;
+            let job = state.jobs.get_mut(&id).expect("leased job exists");
+            if job.attempts >= self.lease.max_attempts {
+                let error = lease_expired_error(job.attempts);
+                let finished = now_millis();
+                db.execute(
+                    "UPDATE jobs SET state = 'failed', finished_at = ?2, error_code = ?3,
+                         error_message = ?4 WHERE id = ?1",
+                    params![id.to_string(), finished, error.code.as_str(), error.message],
+                )?;
+                job.state = JobState::Failed;
+                job.finished_at = Some(finished);
+                job.error = Some(error);
+            } else {
+                db.execute(
+                    "UPDATE jobs SET state = 'queued', started_at = NULL WHERE id = ?1",
+                    params![id.to_string()],
+                )?;
+                job.state = JobState::Queued;
+                job.started_at = None;
+                let seq = job.seq;
+                state.queue.insert((seq, id));
+            }
+            tracing::warn!(job.id = %id, "a job's lease expired: its worker stopped renewing it");
+        }
+        Ok(())
+    }
+}
+
+impl JobStore for SqliteStore {
     /// A receiver that sees every change (for waiting without polling).
-    pub fn subscribe(&self) -> watch::Receiver<u64> {
+    fn subscribe(&self) -> watch::Receiver<u64> {
         self.changed.subscribe()
     }
 
     /// Records a new flight with its jobs in one transaction.
     /// `export_to` is an `s3://bucket/prefix/` for the results, written
     /// when every job has ended.
-    pub fn create_flight(
+    fn create_flight(
         &self,
         params: &JobParams,
         jobs: &[NewJob],
@@ -375,7 +328,7 @@ impl Store {
     /// pass: every name new to the flight and once in `jobs`
     /// ([`StoreError::DuplicateImage`]), the flight at most `max_frames`
     /// frames ([`StoreError::TooManyFrames`]).
-    pub fn add_to_flight(
+    fn add_to_flight(
         &self,
         flight: FlightId,
         jobs: &[NewJob],
@@ -387,7 +340,7 @@ impl Store {
             return Ok(None);
         }
         let mut names: std::collections::HashSet<String> =
-            self.flight_images(flight).into_iter().collect();
+            images_of(&self.state(), flight).into_iter().collect();
         let would = names.len() + jobs.len();
         if would > max_frames {
             return Err(StoreError::TooManyFrames {
@@ -427,32 +380,30 @@ impl Store {
         Ok(Some(records))
     }
 
-    pub fn flight(&self, id: FlightId) -> Option<FlightRecord> {
-        self.state().flights.get(&id).cloned()
+    fn flight(&self, id: FlightId) -> Result<Option<FlightRecord>, StoreError> {
+        Ok(self.state().flights.get(&id).cloned())
     }
 
     /// Image names already used in a flight.
-    pub fn flight_images(&self, id: FlightId) -> Vec<String> {
+    fn flight_images(&self, id: FlightId) -> Result<Vec<String>, StoreError> {
         let state = self.state();
-        state
-            .flight_jobs
-            .get(&id)
-            .map(|ids| ids.iter().map(|j| state.jobs[j].image.clone()).collect())
-            .unwrap_or_default()
+        Ok(images_of(&state, id))
     }
 
     /// A flight's jobs in submission order.
-    pub fn flight_jobs(&self, id: FlightId) -> Option<Vec<JobRecord>> {
+    fn flight_jobs(&self, id: FlightId) -> Result<Option<Vec<JobRecord>>, StoreError> {
         let state = self.state();
-        let ids = state.flight_jobs.get(&id)?;
-        Some(ids.iter().map(|j| state.jobs[j].clone()).collect())
+        Ok(state
+            .flight_jobs
+            .get(&id)
+            .map(|ids| ids.iter().map(|j| state.jobs[j].clone()).collect()))
     }
 
     /// Flights whose every job ended before `cutoff` (and whose export, if
     /// any, is no longer pending): due for removal.
-    pub fn expired_flights(&self, cutoff: Millis) -> Vec<FlightId> {
+    fn expired_flights(&self, cutoff: Millis) -> Result<Vec<FlightId>, StoreError> {
         let state = self.state();
-        state
+        Ok(state
             .flights
             .values()
             .filter(|f| {
@@ -469,11 +420,11 @@ impl Store {
                 ended && (!jobs.is_empty() || f.created_at < cutoff)
             })
             .map(|f| f.id)
-            .collect()
+            .collect())
     }
 
     /// What the first request with `key` created, if one did.
-    pub fn idempotent(&self, key: &str) -> Result<Option<IdemRecord>, StoreError> {
+    fn idempotent(&self, key: &str) -> Result<Option<IdemRecord>, StoreError> {
         let db = self.db();
         let row = db.query_row(
             "SELECT request, flight_id, job_ids FROM idempotency WHERE key = ?1",
@@ -501,28 +452,32 @@ impl Store {
     }
 
     /// Flights, oldest first, after the cursor.
-    pub fn flights(&self, after: Option<FlightId>, limit: usize) -> Vec<FlightRecord> {
+    fn flights(
+        &self,
+        after: Option<FlightId>,
+        limit: usize,
+    ) -> Result<Vec<FlightRecord>, StoreError> {
         let state = self.state();
         let start = after.map_or(std::ops::Bound::Unbounded, std::ops::Bound::Excluded);
-        state
+        Ok(state
             .flights
             .range((start, std::ops::Bound::Unbounded))
             .take(limit)
             .map(|(_, f)| f.clone())
-            .collect()
+            .collect())
     }
 
-    pub fn job(&self, id: JobId) -> Option<JobRecord> {
-        self.state().jobs.get(&id).cloned()
+    fn job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
+        Ok(self.state().jobs.get(&id).cloned())
     }
 
     /// Jobs matching `filter`, oldest first.
-    pub fn jobs(&self, filter: &JobFilter) -> Vec<JobRecord> {
+    fn jobs(&self, filter: &JobFilter) -> Result<Vec<JobRecord>, StoreError> {
         let state = self.state();
         let start = filter
             .after
             .map_or(std::ops::Bound::Unbounded, std::ops::Bound::Excluded);
-        state
+        Ok(state
             .jobs
             .range((start, std::ops::Bound::Unbounded))
             .map(|(_, j)| j)
@@ -530,94 +485,137 @@ impl Store {
             .filter(|j| filter.state.is_none_or(|s| j.state == s))
             .take(filter.limit)
             .cloned()
-            .collect()
+            .collect())
     }
 
-    pub fn stats(&self) -> QueueStats {
+    fn stats(&self) -> Result<QueueStats, StoreError> {
         let state = self.state();
         let fetched = state
             .queue
             .iter()
             .filter(|(_, id)| state.jobs[id].source.is_some())
             .count();
-        QueueStats {
+        Ok(QueueStats {
             fetching: state.fetching.len(),
             fetched,
             queued: state.queue.len(),
             running: state.running,
-        }
+        })
     }
 
     /// Waits up to `timeout` for a queued job and marks it running. Returns
     /// `None` on timeout or when `stop` is set.
-    pub fn claim_next(
+    fn claim_next(
         &self,
         stop: &AtomicBool,
         timeout: Duration,
     ) -> Result<Option<Claim>, StoreError> {
-        {
-            let mut state = self.state();
-            if state.queue.is_empty() {
-                state = self
-                    .work
-                    .wait_timeout_while(state, timeout, |s| {
-                        s.queue.is_empty() && !stop.load(Ordering::SeqCst)
-                    })
-                    .expect("store state lock")
-                    .0;
+        let deadline = Instant::now() + timeout;
+        loop {
+            {
+                let db = self.db();
+                let mut state = self.state();
+                self.reap_expired(&db, &mut state)?;
+                if stop.load(Ordering::SeqCst) {
+                    return Ok(None);
+                }
+                if let Some(&(seq, id)) = state.queue.first() {
+                    let started = now_millis();
+                    db.execute(
+                        "UPDATE jobs SET state = 'running', started_at = ?2, attempts = attempts + 1
+                         WHERE id = ?1",
+                        params![id.to_string(), started],
+                    )?;
+                    state.queue.remove(&(seq, id));
+                    state.running += 1;
+                    let lease = Lease {
+                        job: id,
+                        token: uuid::Uuid::new_v4(),
+                    };
+                    let until = Instant::now() + self.lease.lease;
+                    state.leases.insert(
+                        id,
+                        Held {
+                            token: lease.token,
+                            until,
+                        },
+                    );
+                    let job = state.jobs.get_mut(&id).expect("queued job exists");
+                    job.state = JobState::Running;
+                    job.started_at = Some(started);
+                    job.attempts += 1;
+                    job.tiles_done = 0;
+                    job.tiles_total = 0;
+                    job.cancel_requested = false;
+                    let job = job.clone();
+                    let params = state.flights[&job.flight_id].params.clone();
+                    drop(state);
+                    drop(db);
+                    self.notify();
+                    return Ok(Some(Claim { job, params, lease }));
+                }
             }
-            if stop.load(Ordering::SeqCst) || state.queue.is_empty() {
+            let now = Instant::now();
+            if now >= deadline {
                 return Ok(None);
             }
+            // Wait for work, the next lease to expire, or the deadline.
+            let state = self.state();
+            let wake = state
+                .leases
+                .values()
+                .map(|h| h.until)
+                .min()
+                .map_or(deadline, |e| e.clamp(now, deadline));
+            let _ = self
+                .work
+                .wait_timeout_while(state, wake - now, |s| {
+                    s.queue.is_empty() && !stop.load(Ordering::SeqCst)
+                })
+                .expect("store state lock");
         }
-        let db = self.db();
+    }
+
+    fn heartbeat(&self, lease: &Lease, progress: &Progress) -> Result<LeaseState, StoreError> {
         let mut state = self.state();
-        // Another worker may have taken it between the two locks.
-        let Some(&(seq, id)) = state.queue.first() else {
-            return Ok(None);
-        };
-        let started = now_millis();
-        db.execute(
-            "UPDATE jobs SET state = 'running', started_at = ?2, attempts = attempts + 1 WHERE id = ?1",
-            params![id.to_string(), started],
-        )?;
-        state.queue.remove(&(seq, id));
-        state.running += 1;
-        let cancel = Arc::new(AtomicBool::new(false));
-        state.cancel.insert(id, cancel.clone());
-        let job = state.jobs.get_mut(&id).expect("queued job exists");
-        job.state = JobState::Running;
-        job.started_at = Some(started);
-        job.attempts += 1;
-        job.tiles_done = 0;
-        job.tiles_total = 0;
-        let job = job.clone();
-        let params = state.flights[&job.flight_id].params.clone();
+        match state.leases.get_mut(&lease.job) {
+            Some(held) if held.token == lease.token => {
+                held.until = Instant::now() + self.lease.lease;
+            }
+            _ => return Ok(LeaseState::Lost),
+        }
+        let job = state.jobs.get_mut(&lease.job).expect("leased job exists");
+        let before = (job.width, job.height, job.tiles_done, job.tiles_total);
+        if let Some((w, h)) = progress.size {
+            job.width = Some(w);
+            job.height = Some(h);
+        }
+        job.tiles_done = progress.tiles_done;
+        job.tiles_total = progress.tiles_total;
+        let cancel = job.cancel_requested;
+        let changed = before != (job.width, job.height, job.tiles_done, job.tiles_total);
         drop(state);
-        drop(db);
-        self.notify();
-        Ok(Some(Claim {
-            job,
-            params,
-            cancel,
-        }))
+        if changed {
+            self.notify();
+        }
+        Ok(LeaseState::Held { cancel })
     }
 
     /// The first `limit` jobs waiting for their frame, in queue order.
-    pub fn to_fetch(&self, limit: usize) -> Vec<JobRecord> {
+    fn to_fetch(&self, limit: usize) -> Result<Vec<JobRecord>, StoreError> {
         let state = self.state();
-        state
+        Ok(state
             .fetching
             .iter()
             .take(limit)
             .map(|(_, id)| state.jobs[id].clone())
-            .collect()
+            .collect())
     }
 
     /// A fetched frame is in `frames/`: the job joins the worker queue.
     /// Returns `false` if the job was canceled or deleted meanwhile (the
     /// caller removes the frame).
-    pub fn fetched(&self, id: JobId, ext: &str, bytes: u64) -> Result<bool, StoreError> {
+    fn fetched(&self, id: JobId, ext: &str, bytes: u64) -> Result<bool, StoreError> {
         let db = self.db();
         let mut state = self.state();
         let Some(job) = state.jobs.get(&id) else {
@@ -645,7 +643,7 @@ impl Store {
     }
 
     /// A frame could not be fetched: the job fails with the reason.
-    pub fn fetch_failed(&self, id: JobId, error: &JobError) -> Result<(), StoreError> {
+    fn fetch_failed(&self, id: JobId, error: &JobError) -> Result<(), StoreError> {
         let db = self.db();
         let mut state = self.state();
         let Some(job) = state.jobs.get(&id) else {
@@ -673,7 +671,7 @@ impl Store {
 
     /// Flights whose results are due to be written: export pending and
     /// every job ended.
-    pub fn exports_due(&self) -> Vec<(FlightRecord, Vec<JobRecord>)> {
+    fn exports_due(&self) -> Result<Vec<(FlightRecord, Vec<JobRecord>)>, StoreError> {
         let state = self.state();
         let mut due = Vec::new();
         for flight in state.flights.values() {
@@ -688,12 +686,12 @@ impl Store {
                 due.push((flight.clone(), jobs));
             }
         }
-        due
+        Ok(due)
     }
 
     /// Records an export attempt: written, or failed with the reason
     /// (`give_up` marks it failed for good, else it stays pending).
-    pub fn export_done(
+    fn export_done(
         &self,
         flight: FlightId,
         result: Result<(), String>,
@@ -739,75 +737,45 @@ impl Store {
         Ok(())
     }
 
-    /// Wakes workers waiting in [`Store::claim_next`] (used at shutdown).
-    pub fn wake_workers(&self) {
+    /// Wakes workers waiting in [`JobStore::claim_next`] (used at shutdown).
+    fn wake_workers(&self) {
         let _state = self.state();
         self.work.notify_all();
     }
 
-    /// Records a running job's frame size and tile progress (memory only).
-    pub fn progress(&self, id: JobId, size: Option<(u32, u32)>, done: u32, total: u32) {
+    /// Puts the job back in the queue in memory only: the store still says
+    /// running, which the next start requeues. For a server that stops
+    /// while its disk is full.
+    fn release_unrecorded(&self, lease: &Lease) {
         let mut state = self.state();
-        if let Some(job) = state.jobs.get_mut(&id) {
-            if let Some((w, h)) = size {
-                job.width = Some(w);
-                job.height = Some(h);
-            }
-            job.tiles_done = done;
-            job.tiles_total = total;
-        }
-        drop(state);
-        self.notify();
-    }
-
-    /// Records how a claimed job ended. A job deleted meanwhile stays deleted
-    /// (the caller removes what it wrote when this returns `false`).
-    /// Puts a running job whose end could not be recorded back in the
-    /// queue, in memory only: the store still says running, which the next
-    /// start requeues. For a server that stops while its disk is full.
-    pub fn release_unrecorded(&self, id: JobId) {
-        let mut state = self.state();
-        state.cancel.remove(&id);
-        let Some(job) = state.jobs.get_mut(&id) else {
-            return;
-        };
-        if job.state != JobState::Running {
+        if state.leases.get(&lease.job).map(|h| h.token) != Some(lease.token) {
             return;
         }
+        state.leases.remove(&lease.job);
+        let job = state.jobs.get_mut(&lease.job).expect("leased job exists");
         job.state = JobState::Queued;
         job.started_at = None;
         let seq = job.seq;
-        state.queue.insert((seq, id));
+        state.queue.insert((seq, lease.job));
         state.running -= 1;
     }
 
-    pub fn finish(&self, id: JobId, outcome: &Outcome) -> Result<bool, StoreError> {
+    fn finish(&self, lease: &Lease, outcome: &Outcome) -> Result<Finished, StoreError> {
         let db = self.db();
-        let finished = now_millis();
-        let (state_name, error, size, targets) = match outcome {
-            Outcome::Succeeded {
-                width,
-                height,
-                targets,
-                ..
-            } => (
-                JobState::Succeeded,
-                None,
-                Some((*width, *height)),
-                Some(*targets),
-            ),
-            Outcome::Failed(e) => (JobState::Failed, Some(e.clone()), None, None),
-            Outcome::Canceled => (JobState::Canceled, None, None, None),
-            Outcome::Interrupted => (JobState::Queued, None, None, None),
-        };
-        let warnings = match outcome {
-            Outcome::Succeeded { warnings, .. } => warnings.clone(),
-            _ => Vec::new(),
-        };
-        let warnings_text =
-            (!warnings.is_empty()).then(|| serde_json::to_string(&warnings).expect("strings"));
-        let finished_at = (state_name != JobState::Queued).then_some(finished);
-        let changed = db.execute(
+        let id = lease.job;
+        {
+            let state = self.state();
+            if !state.jobs.contains_key(&id) {
+                // Deleted while running; the running count was settled by delete.
+                return Ok(Finished::Deleted);
+            }
+            if state.leases.get(&id).map(|h| h.token) != Some(lease.token) {
+                return Ok(Finished::Lost);
+            }
+        }
+        let end = Ending::of(outcome);
+        let (state_name, finished_at) = (end.state, end.finished_at);
+        db.execute(
             "UPDATE jobs SET state = ?2, finished_at = ?3, error_code = ?4, error_message = ?5,
                  width = COALESCE(?6, width), height = COALESCE(?7, height), targets = ?8,
                  started_at = CASE WHEN ?2 = 'queued' THEN NULL ELSE started_at END,
@@ -815,22 +783,20 @@ impl Store {
              WHERE id = ?1",
             params![
                 id.to_string(),
-                state_name.as_str(),
-                finished_at,
-                error.as_ref().map(|e| e.code.as_str()),
-                error.as_ref().map(|e| e.message.clone()),
-                size.map(|s| s.0),
-                size.map(|s| s.1),
-                targets,
-                warnings_text,
+                end.state.as_str(),
+                end.finished_at,
+                end.error.as_ref().map(|e| e.code.as_str()),
+                end.error.as_ref().map(|e| e.message.clone()),
+                end.size.map(|s| s.0),
+                end.size.map(|s| s.1),
+                end.targets,
+                end.warnings_json(),
             ],
         )?;
+        let (error, size, targets, warnings) = (end.error, end.size, end.targets, end.warnings);
         let mut state = self.state();
-        state.cancel.remove(&id);
-        let Some(job) = state.jobs.get_mut(&id) else {
-            // Deleted while running; the running count was settled by delete.
-            return Ok(false);
-        };
+        state.leases.remove(&id);
+        let job = state.jobs.get_mut(&id).expect("checked above under the db lock");
         job.state = state_name;
         job.finished_at = finished_at;
         job.error = error;
@@ -853,12 +819,12 @@ impl Store {
             self.work.notify_all();
         }
         self.notify();
-        Ok(changed == 1)
+        Ok(Finished::Recorded)
     }
 
-    /// Cancels a job: a queued one at once, a running one at its next tile.
+    /// Cancels a job: a queued one at once, a running one at its next heartbeat.
     /// `None` if there is no such job.
-    pub fn cancel_job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
+    fn cancel_job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
         let db = self.db();
         let mut state = self.state();
         let Some(job) = state.jobs.get(&id).cloned() else {
@@ -873,7 +839,7 @@ impl Store {
 
     /// Cancels every unfinished job of a flight; `None` if there is no such
     /// flight.
-    pub fn cancel_flight(&self, id: FlightId) -> Result<Option<Vec<JobRecord>>, StoreError> {
+    fn cancel_flight(&self, id: FlightId) -> Result<Option<Vec<JobRecord>>, StoreError> {
         let db = self.db();
         let mut state = self.state();
         let Some(ids) = state.flight_jobs.get(&id).cloned() else {
@@ -892,7 +858,7 @@ impl Store {
 
     /// Deletes a job's record (cancelling it if it runs); returns the
     /// removed record so the caller can remove its files.
-    pub fn delete_job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
+    fn delete_job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
         let db = self.db();
         let mut state = self.state();
         let Some(job) = state.jobs.get(&id).cloned() else {
@@ -910,7 +876,7 @@ impl Store {
     }
 
     /// Deletes a flight and all its jobs; returns the removed jobs.
-    pub fn delete_flight(&self, id: FlightId) -> Result<Option<Vec<JobRecord>>, StoreError> {
+    fn delete_flight(&self, id: FlightId) -> Result<Option<Vec<JobRecord>>, StoreError> {
         let db = self.db();
         let mut state = self.state();
         if !state.flights.contains_key(&id) {
@@ -929,6 +895,25 @@ impl Store {
         drop(db);
         self.notify();
         Ok(Some(out))
+    }
+}
+
+/// Image names already used in a flight.
+fn images_of(state: &State, id: FlightId) -> Vec<String> {
+    state
+        .flight_jobs
+        .get(&id)
+        .map(|ids| ids.iter().map(|j| state.jobs[j].image.clone()).collect())
+        .unwrap_or_default()
+}
+
+/// Why a job whose lease expired on its last attempt failed.
+pub(super) fn lease_expired_error(attempts: u32) -> JobError {
+    JobError {
+        code: ErrorCode::WorkerCrashed,
+        message: format!(
+            "its worker stopped renewing its claim on each of {attempts} attempts; the frame is not retried"
+        ),
     }
 }
 
@@ -1060,9 +1045,6 @@ fn cancel_locked(
             Ok(rec.clone())
         }
         JobState::Running => {
-            if let Some(flag) = state.cancel.get(&job.id) {
-                flag.store(true, Ordering::SeqCst);
-            }
             let rec = state.jobs.get_mut(&job.id).expect("job exists");
             rec.cancel_requested = true;
             Ok(rec.clone())
@@ -1074,8 +1056,7 @@ fn cancel_locked(
 fn remove_locked(state: &mut State, job: &JobRecord) {
     state.queue.remove(&(job.seq, job.id));
     state.fetching.remove(&(job.seq, job.id));
-    if let Some(flag) = state.cancel.remove(&job.id) {
-        flag.store(true, Ordering::SeqCst);
+    if state.leases.remove(&job.id).is_some() {
         state.running -= 1;
     }
     state.jobs.remove(&job.id);
@@ -1128,21 +1109,7 @@ fn load(conn: &Connection) -> Result<State, StoreError> {
     let mut records = Vec::new();
     while let Some(r) = rows.next()? {
         let state_name: String = r.get(6)?;
-        let error = match (
-            r.get::<_, Option<String>>(11)?,
-            r.get::<_, Option<String>>(12)?,
-        ) {
-            (Some(code), Some(message)) => Some(JobError {
-                // A code this version no longer has (a store written by
-                // another) reads as ours, its text kept in the message.
-                code: code.parse().unwrap_or_else(|_| {
-                    tracing::warn!(%code, "a stored job error has an unknown code");
-                    crate::error_code::ErrorCode::Internal
-                }),
-                message,
-            }),
-            _ => None,
-        };
+        let error = stored_error(r.get(11)?, r.get(12)?);
         records.push(JobRecord {
             seq: r.get(0)?,
             id: parse_id(&r.get::<_, String>(1)?)?,
@@ -1200,7 +1167,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("jobs.sqlite");
         let (a, b) = (sourced("a.tif"), sourced("b.tif"));
-        let store = Store::open(&path).unwrap();
+        let store = SqliteStore::open(&path).unwrap();
         let flight = store
             .create_flight(
                 &JobParams::default(),
@@ -1209,14 +1176,14 @@ mod tests {
                 None,
             )
             .unwrap();
-        assert_eq!(store.stats().fetching, 2);
-        assert_eq!(store.stats().queued, 0);
+        assert_eq!(store.stats().unwrap().fetching, 2);
+        assert_eq!(store.stats().unwrap().queued, 0);
         drop(store);
 
-        let store = Store::open(&path).unwrap();
-        let waiting: Vec<JobId> = store.to_fetch(10).iter().map(|j| j.id).collect();
+        let store = SqliteStore::open(&path).unwrap();
+        let waiting: Vec<JobId> = store.to_fetch(10).unwrap().iter().map(|j| j.id).collect();
         assert_eq!(waiting, [a.id, b.id]);
-        let job = store.job(a.id).unwrap();
+        let job = store.job(a.id).unwrap().unwrap();
         assert_eq!(job.source.as_deref(), Some("s3://b/a.tif"));
         assert_eq!(job.source_etag.as_deref(), Some("\"etag\""));
         assert!(store.fetched(a.id, "tif", 12).unwrap());
@@ -1227,7 +1194,7 @@ mod tests {
         store.fetch_failed(b.id, &error).unwrap();
         // A second answer for the same fetch changes nothing.
         assert!(!store.fetched(a.id, "tif", 12).unwrap());
-        let stats = store.stats();
+        let stats = store.stats().unwrap();
         assert_eq!((stats.fetching, stats.queued, stats.fetched), (0, 1, 1));
         let stop = AtomicBool::new(false);
         let claim = store
@@ -1235,35 +1202,35 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!((claim.job.id, claim.job.ext.as_str()), (a.id, "tif"));
-        assert!(store.exports_due().is_empty(), "a job still runs");
+        assert!(store.exports_due().unwrap().is_empty(), "a job still runs");
         let done = Outcome::Succeeded {
             width: 1,
             height: 1,
             targets: 0,
             warnings: vec!["partial: rows 1..2 do not decode".into()],
         };
-        store.finish(a.id, &done).unwrap();
-        let due = store.exports_due();
+        assert_eq!(store.finish(&claim.lease, &done).unwrap(), Finished::Recorded);
+        let due = store.exports_due().unwrap();
         assert_eq!(due.len(), 1);
         assert_eq!(due[0].0.id, flight.id);
         store.export_done(flight.id, Ok(()), false).unwrap();
         drop(store);
 
-        let store = Store::open(&path).unwrap();
-        let export = store.flight(flight.id).unwrap().export.unwrap();
+        let store = SqliteStore::open(&path).unwrap();
+        let export = store.flight(flight.id).unwrap().unwrap().export.unwrap();
         assert_eq!((export.state, export.attempts), (ExportState::Written, 1));
         // A succeeded job's warnings survive a restart.
         assert_eq!(
-            store.job(a.id).unwrap().warnings,
+            store.job(a.id).unwrap().unwrap().warnings,
             ["partial: rows 1..2 do not decode"]
         );
-        assert_eq!(store.job(b.id).unwrap().error, Some(error));
+        assert_eq!(store.job(b.id).unwrap().unwrap().error, Some(error));
     }
 
     #[test]
     fn a_name_is_recorded_once_per_flight_and_the_limit_holds_in_the_store() {
         let dir = tempfile::tempdir().unwrap();
-        let store = Store::open(&dir.path().join("jobs.sqlite")).unwrap();
+        let store = SqliteStore::open(&dir.path().join("jobs.sqlite")).unwrap();
         let flight = store
             .create_flight(&JobParams::default(), &[sourced("a.tif")], None, None)
             .unwrap();
@@ -1276,12 +1243,12 @@ mod tests {
             many,
             Err(StoreError::TooManyFrames { would: 3, max: 2 })
         ));
-        assert_eq!(store.flight_images(flight.id), ["a.tif"]);
+        assert_eq!(store.flight_images(flight.id).unwrap(), ["a.tif"]);
         store
             .add_to_flight(flight.id, &[sourced("b.tif")], None, 2)
             .unwrap()
             .unwrap();
-        assert_eq!(store.flight_jobs(flight.id).unwrap().len(), 2);
+        assert_eq!(store.flight_jobs(flight.id).unwrap().unwrap().len(), 2);
         // The database refuses a repeat on its own too.
         let db = store.db();
         let insert = db.execute(
@@ -1316,9 +1283,9 @@ mod tests {
         )
         .unwrap();
         drop(conn);
-        let store = Store::open(&path).unwrap();
-        assert_eq!(store.stats().queued, 1);
-        assert_eq!(store.flight(uuid::Uuid::nil()).unwrap().export, None);
+        let store = SqliteStore::open(&path).unwrap();
+        assert_eq!(store.stats().unwrap().queued, 1);
+        assert_eq!(store.flight(uuid::Uuid::nil()).unwrap().unwrap().export, None);
         drop(store);
         // Migrated to this build's version, which a second open keeps.
         let version = |path: &Path| -> u32 {
@@ -1328,7 +1295,7 @@ mod tests {
                 .unwrap()
         };
         assert_eq!(version(&path), SCHEMA_VERSION);
-        Store::open(&path).unwrap();
+        SqliteStore::open(&path).unwrap();
         assert_eq!(version(&path), SCHEMA_VERSION);
     }
 
@@ -1336,12 +1303,12 @@ mod tests {
     fn a_store_from_a_newer_build_is_refused_and_left_as_it_is() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("jobs.sqlite");
-        drop(Store::open(&path).unwrap());
+        drop(SqliteStore::open(&path).unwrap());
         let conn = Connection::open(&path).unwrap();
         conn.pragma_update(None, "user_version", SCHEMA_VERSION + 1)
             .unwrap();
         drop(conn);
-        let err = Store::open(&path).err().expect("refused").to_string();
+        let err = SqliteStore::open(&path).err().expect("refused").to_string();
         assert!(
             err.contains(&format!("version {}", SCHEMA_VERSION + 1))
                 && err.contains("newer than this build"),

@@ -9,5 +9,6 @@ if ! python3 -c "import moto.server, boto3, flask" >/dev/null 2>&1; then
 fi
 
 # A real browser for the review page's end-to-end test: Debian's chromium
-# and its WebDriver server.
-APT_INSTALL_FOR=test-deps bash "$(dirname "$0")/apt-install.sh" chromium chromium-driver
+# and its WebDriver server. A real PostgreSQL for the job store's contract
+# tests (its programs only: the tests run initdb and pg_ctl themselves).
+APT_INSTALL_FOR=test-deps bash "$(dirname "$0")/apt-install.sh" chromium chromium-driver postgresql

@@ -1,5 +1,6 @@
 //! Integration tests: one binary, frames rendered with exact truth.
 
+mod postgres;
 mod server;
 mod support;
 
@@ -16,4 +17,5 @@ mod printed;
 mod real;
 mod s3;
 mod service;
+mod store_contract;
 mod tiling;

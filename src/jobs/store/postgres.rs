@@ -190,9 +190,12 @@ impl PgStore {
         f: impl Future<Output = Result<T, StoreError>> + Send + 'static,
     ) -> Result<T, StoreError> {
         let (tx, rx) = std::sync::mpsc::sync_channel(1);
-        self.rt.as_ref().expect("runtime until drop").spawn(async move {
-            let _ = tx.send(f.await);
-        });
+        self.rt
+            .as_ref()
+            .expect("runtime until drop")
+            .spawn(async move {
+                let _ = tx.send(f.await);
+            });
         rx.recv()
             .map_err(|_| pool_error("the store's runtime stopped"))?
     }
@@ -543,16 +546,28 @@ async fn cancel_in(
         return Ok(None);
     };
     let job = job_from_row(&row)?;
-    let sql = match job.state {
+    match job.state {
         JobState::Queued | JobState::Fetching => {
-            "UPDATE jobs SET state = 'canceled', finished_at = $2 WHERE id = $1"
+            tx.execute(
+                "UPDATE jobs SET state = 'canceled', finished_at = $2 WHERE id = $1",
+                &[&id, &now_millis()],
+            )
+            .await?
         }
-        JobState::Running => "UPDATE jobs SET cancel_requested = TRUE WHERE id = $1 AND $2 > 0",
+        JobState::Running => {
+            tx.execute(
+                "UPDATE jobs SET cancel_requested = TRUE WHERE id = $1",
+                &[&id],
+            )
+            .await?
+        }
         _ => return Ok(Some(job)),
     };
-    tx.execute(sql, &[&id, &now_millis()]).await?;
     let row = tx
-        .query_one(&format!("SELECT {JOB_COLS} FROM jobs WHERE id = $1"), &[&id])
+        .query_one(
+            &format!("SELECT {JOB_COLS} FROM jobs WHERE id = $1"),
+            &[&id],
+        )
         .await?;
     Ok(Some(job_from_row(&row)?))
 }
@@ -774,10 +789,13 @@ impl JobStore for PgStore {
 
     fn job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
         self.with(move |c| async move {
-            c.query_opt(&format!("SELECT {JOB_COLS} FROM jobs WHERE id = $1"), &[&id])
-                .await?
-                .map(|r| job_from_row(&r))
-                .transpose()
+            c.query_opt(
+                &format!("SELECT {JOB_COLS} FROM jobs WHERE id = $1"),
+                &[&id],
+            )
+            .await?
+            .map(|r| job_from_row(&r))
+            .transpose()
         })
     }
 
@@ -838,10 +856,8 @@ impl JobStore for PgStore {
         timeout: Duration,
     ) -> Result<Option<Claim>, StoreError> {
         let deadline = Instant::now() + timeout;
-        let (lease_ms, max_attempts) = (
-            self.lease.lease.as_millis() as i64,
-            self.lease.max_attempts,
-        );
+        let (lease_ms, max_attempts) =
+            (self.lease.lease.as_millis() as i64, self.lease.max_attempts);
         loop {
             let seen = *self.wake.generation.lock().expect("wake lock");
             if stop.load(Ordering::SeqCst) {
@@ -870,7 +886,10 @@ impl JobStore for PgStore {
                 };
                 let job = job_from_row(&row)?;
                 let params: String = tx
-                    .query_one("SELECT params FROM flights WHERE id = $1", &[&job.flight_id])
+                    .query_one(
+                        "SELECT params FROM flights WHERE id = $1",
+                        &[&job.flight_id],
+                    )
                     .await?
                     .get(0);
                 let params: JobParams = serde_json::from_str(&params).map_err(|e| {
@@ -941,7 +960,10 @@ impl JobStore for PgStore {
             })
         })?;
         if state == LeaseState::Lost {
-            self.reported.lock().expect("reported lock").remove(&lease.job);
+            self.reported
+                .lock()
+                .expect("reported lock")
+                .remove(&lease.job);
         }
         Ok(state)
     }

@@ -796,7 +796,10 @@ impl JobStore for SqliteStore {
         let (error, size, targets, warnings) = (end.error, end.size, end.targets, end.warnings);
         let mut state = self.state();
         state.leases.remove(&id);
-        let job = state.jobs.get_mut(&id).expect("checked above under the db lock");
+        let job = state
+            .jobs
+            .get_mut(&id)
+            .expect("checked above under the db lock");
         job.state = state_name;
         job.finished_at = finished_at;
         job.error = error;
@@ -1209,7 +1212,10 @@ mod tests {
             targets: 0,
             warnings: vec!["partial: rows 1..2 do not decode".into()],
         };
-        assert_eq!(store.finish(&claim.lease, &done).unwrap(), Finished::Recorded);
+        assert_eq!(
+            store.finish(&claim.lease, &done).unwrap(),
+            Finished::Recorded
+        );
         let due = store.exports_due().unwrap();
         assert_eq!(due.len(), 1);
         assert_eq!(due[0].0.id, flight.id);
@@ -1285,7 +1291,10 @@ mod tests {
         drop(conn);
         let store = SqliteStore::open(&path).unwrap();
         assert_eq!(store.stats().unwrap().queued, 1);
-        assert_eq!(store.flight(uuid::Uuid::nil()).unwrap().unwrap().export, None);
+        assert_eq!(
+            store.flight(uuid::Uuid::nil()).unwrap().unwrap().export,
+            None
+        );
         drop(store);
         // Migrated to this build's version, which a second open keeps.
         let version = |path: &Path| -> u32 {

@@ -22,6 +22,9 @@ pub struct ServeArgs {
     /// The job store: `postgres://user:password@host/db` for one queue shared by several replicas; default: SQLite in the data folder.
     #[arg(long, env = "GCP_TAGGER_STORE")]
     pub store: Option<String>,
+    /// With `--store postgres://...`: the bucket and prefix (`s3://bucket/prefix/`) where frames, results, reviews and surveys live, so any replica can run any job and serve any result (through the S3 settings below).
+    #[arg(long, env = "GCP_TAGGER_SHARED_FILES")]
+    pub shared_files: Option<String>,
     /// Seconds a job's claim lasts without a heartbeat from its worker (sent every 0.25 s) before the job is queued again.
     #[arg(long, env = "GCP_TAGGER_LEASE_SECS", default_value_t = 30)]
     pub lease_secs: u64,
@@ -178,6 +181,24 @@ impl ServeArgs {
                     "--store must be a postgres:// or postgresql:// URL (leave it out for the embedded SQLite store)".into(),
                 ));
             }
+        }
+        match (&self.store, &self.shared_files) {
+            (Some(_), None) => {
+                return Err(ConfigError(
+                    "--store postgres://... needs --shared-files s3://bucket/prefix/: replicas keep frames and results there".into(),
+                ))
+            }
+            (None, Some(_)) => {
+                return Err(ConfigError(
+                    "--shared-files is for replicas sharing a --store postgres://...; the embedded store keeps files in --data-dir".into(),
+                ))
+            }
+            (Some(_), Some(url)) if !(url.starts_with("s3://") && url.ends_with('/')) => {
+                return Err(ConfigError(format!(
+                    "--shared-files must be s3://bucket/prefix/ (ending in '/'), got {url:?}"
+                )))
+            }
+            _ => {}
         }
         if self.lease_secs < 2 {
             return Err(ConfigError(format!(

@@ -20,6 +20,7 @@ use crate::jobs::store::{self, LeaseConfig};
 use crate::jobs::{export, retention, PoolConfig, WorkerPool};
 use crate::storage::header::PixelLimits;
 use crate::storage::s3::S3;
+use crate::storage::shared::SharedFiles;
 use crate::storage::DataDir;
 use crate::telemetry::Metrics;
 
@@ -27,7 +28,16 @@ use crate::telemetry::Metrics;
 pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
     args.validate()?;
     let max_ram_bytes = args.max_ram_bytes()?;
-    let data = DataDir::open(&args.data_dir)?;
+    let mut data = DataDir::open(&args.data_dir)?;
+    let s3 = Arc::new(S3::new(args.s3_config()));
+    if let Some(url) = &args.shared_files {
+        let shared = SharedFiles::new(&s3, url).context("--shared-files")?;
+        tracing::info!(
+            url = shared.url(),
+            "frames and results are shared through the bucket"
+        );
+        data = data.with_shared(Arc::new(shared));
+    }
     let db_path = data.db_path();
     let lease = LeaseConfig {
         lease: std::time::Duration::from_secs(args.lease_secs),
@@ -53,7 +63,6 @@ pub async fn run(args: ServeArgs) -> anyhow::Result<()> {
     );
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
     let ready = Arc::new(AtomicBool::new(false));
-    let s3 = Arc::new(S3::new(args.s3_config()));
     let fetcher = tokio::spawn(fetch::run(
         store.clone(),
         data.clone(),

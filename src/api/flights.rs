@@ -579,7 +579,7 @@ pub async fn delete_flight(
             data.remove_job_files(job.id, &job.ext);
         }
         if jobs.is_some() {
-            let _ = std::fs::remove_file(data.survey_path(id));
+            data.remove_survey(id);
         }
         Ok::<_, ApiError>(jobs)
     })

@@ -200,10 +200,16 @@ fn succeeded(state: &AppState, id: Uuid) -> Result<JobRecord, ApiError> {
 }
 
 async fn picture(
+    data: &crate::storage::DataDir,
     path: std::path::PathBuf,
     media: &'static str,
     what: String,
 ) -> Result<Response, ApiError> {
+    let (shared, from) = (data.clone(), path.clone());
+    tokio::task::spawn_blocking(move || shared.bring_in(&from))
+        .await
+        .map_err(|e| ApiError::internal("reading a picture", e))?
+        .map_err(|e| ApiError::internal("reading a picture from the shared files", e))?;
     match tokio::fs::read(&path).await {
         Ok(bytes) => Ok((
             [
@@ -245,7 +251,13 @@ pub async fn get_chip(
     let (id, index) = job_and_index(&id, &index)?;
     succeeded(&state, id)?;
     let path = state.data.pictures_dir(id).join(format!("{index}.png"));
-    picture(path, "image/png", format!("detection {index} in job {id}")).await
+    picture(
+        &state.data,
+        path,
+        "image/png",
+        format!("detection {index} in job {id}"),
+    )
+    .await
 }
 
 /// A frame's preview: reduced to at most 1280 px a side, every detection
@@ -266,7 +278,13 @@ pub async fn get_preview(
 ) -> Result<Response, ApiError> {
     succeeded(&state, id)?;
     let path = state.data.pictures_dir(id).join("preview.jpg");
-    picture(path, "image/jpeg", format!("preview of job {id}")).await
+    picture(
+        &state.data,
+        path,
+        "image/jpeg",
+        format!("preview of job {id}"),
+    )
+    .await
 }
 
 /// Parses the `{id}` and `{index}` of a route.

@@ -131,7 +131,17 @@ impl FetchTask {
         let recorded = match outcome {
             Ok((ext, bytes)) => {
                 let dest = self.data.frame_path(job.id, ext);
-                match std::fs::rename(&tmp, &dest) {
+                let placed = match std::fs::rename(&tmp, &dest) {
+                    // Replicas: the job may run anywhere.
+                    Ok(()) => {
+                        let (data, dest) = (self.data.clone(), dest.clone());
+                        tokio::task::spawn_blocking(move || data.publish(&dest))
+                            .await
+                            .unwrap_or_else(|e| Err(std::io::Error::other(e)))
+                    }
+                    Err(e) => Err(e),
+                };
+                match placed {
                     Ok(()) => {
                         tracing::info!(
                             bytes,

@@ -361,6 +361,18 @@ impl Worker {
         };
         let frame = self.data.frame_path(job.id, &job.ext);
         let result = self.data.result_path(job.id);
+        // Replicas: the frame may have arrived at another one.
+        if let Err(e) = self.data.bring_in(&frame) {
+            tracing::warn!(error = %e, "cannot bring the frame in from the shared files; the job goes back to the queue");
+            std::thread::sleep(DISK_WAIT);
+            return Some((Outcome::Interrupted, 0.0));
+        }
+        if !frame.exists() {
+            return fail(
+                ErrorCode::Internal,
+                "the frame is missing from the data folder (and the shared files)".into(),
+            );
+        }
         // The worker's process, kept from its last job, or a fresh one.
         let mut child = match self.child.take() {
             Some(child) => child,
@@ -461,6 +473,19 @@ impl Worker {
                 }) => {
                     drop(permit);
                     self.child = Some(child);
+                    // Replicas: pictures first, then the result that
+                    // names them, so a result anyone reads has its pictures.
+                    let pictures = self.data.pictures_dir(job.id);
+                    let published = (if pictures.exists() {
+                        self.data.publish(&pictures)
+                    } else {
+                        Ok(())
+                    })
+                    .and_then(|()| self.data.publish(&self.data.result_path(job.id)));
+                    if let Err(e) = published {
+                        tracing::warn!(error = %e, "cannot write the result to the shared files; the job goes back to the queue");
+                        return Some((Outcome::Interrupted, 0.0));
+                    }
                     return Some((
                         Outcome::Succeeded {
                             width,

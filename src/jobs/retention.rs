@@ -51,7 +51,7 @@ pub fn sweep(store: &dyn super::store::JobStore, data: &DataDir, cutoff: i64) ->
                 for job in &jobs {
                     data.remove_job_files(job.id, &job.ext);
                 }
-                let _ = std::fs::remove_file(data.survey_path(id));
+                data.remove_survey(id);
                 removed += 1;
             }
             Ok(None) => {}

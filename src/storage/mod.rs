@@ -2,6 +2,7 @@
 
 pub mod header;
 pub mod s3;
+pub mod shared;
 pub mod spool;
 
 pub use spool::{DataDir, StoredFileError};

@@ -234,6 +234,12 @@ impl S3 {
         &self.config
     }
 
+    /// The client for a bucket named by the server's own configuration
+    /// (the shared files' bucket), through the same checks as a client's.
+    pub fn client_for(&self, bucket: &str) -> Result<Arc<AmazonS3>, S3Error> {
+        self.client(bucket)
+    }
+
     /// The client for a bucket, after the allow-list.
     fn client(&self, bucket: &str) -> Result<Arc<AmazonS3>, S3Error> {
         check_bucket_name(bucket).map_err(S3Error::BadUrl)?;

@@ -13,6 +13,8 @@ use std::io::{self, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use super::shared::SharedFiles;
+
 use uuid::Uuid;
 
 /// A file the service stored that cannot be used: the data folder was
@@ -39,6 +41,8 @@ pub struct DataDir {
     root: PathBuf,
     /// The folder's owner lock, held while any clone lives.
     _owner: Arc<File>,
+    /// With replicas sharing one queue: the bucket this folder caches.
+    shared: Option<Arc<SharedFiles>>,
 }
 
 /// Why a data folder cannot be used.
@@ -74,6 +78,7 @@ impl DataDir {
         let dir = DataDir {
             root: root.to_path_buf(),
             _owner: Arc::new(owner),
+            shared: None,
         };
         dir.make_layout().map_err(io_err)?;
         Ok(dir)
@@ -92,6 +97,37 @@ impl DataDir {
 
     pub fn root(&self) -> &Path {
         &self.root
+    }
+
+    /// This folder as a cache of files shared by replicas in a bucket.
+    pub fn with_shared(mut self, shared: Arc<SharedFiles>) -> DataDir {
+        self.shared = Some(shared);
+        self
+    }
+
+    /// Writes the file (or folder) at `path` to the shared bucket, if any.
+    pub fn publish(&self, path: &Path) -> io::Result<()> {
+        match (&self.shared, path.strip_prefix(&self.root)) {
+            (Some(shared), Ok(rel)) => shared.publish(&self.root, rel),
+            _ => Ok(()),
+        }
+    }
+
+    /// Brings the file at `path` in from the shared bucket, if any (see
+    /// [`SharedFiles::bring_in`]).
+    pub fn bring_in(&self, path: &Path) -> io::Result<()> {
+        match (&self.shared, path.strip_prefix(&self.root)) {
+            (Some(shared), Ok(rel)) => shared.bring_in(&self.root, rel),
+            _ => Ok(()),
+        }
+    }
+
+    fn unpublish(&self, path: &Path) {
+        if let (Some(shared), Ok(rel)) = (&self.shared, path.strip_prefix(&self.root)) {
+            if let Err(e) = shared.remove(rel) {
+                tracing::warn!(path = %rel.display(), bucket = shared.url(), error = %e, "cannot remove a shared file");
+            }
+        }
     }
 
     pub fn db_path(&self) -> PathBuf {
@@ -148,6 +184,11 @@ impl DataDir {
         &self,
         path: &Path,
     ) -> Result<Option<T>, StoredFileError> {
+        self.bring_in(path)
+            .map_err(|source| StoredFileError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
         let bytes = match std::fs::read(path) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
@@ -172,12 +213,21 @@ impl DataDir {
         let tmp = self.spool_path();
         std::fs::write(&tmp, bytes)?;
         std::fs::File::open(&tmp)?.sync_all()?;
-        std::fs::rename(&tmp, path)
+        std::fs::rename(&tmp, path)?;
+        self.publish(path)
     }
 
     /// Removes a job's frame, result, pictures and reviews; missing files
     /// are fine.
     pub fn remove_job_files(&self, job: Uuid, ext: &str) {
+        for path in [
+            self.frame_path(job, ext),
+            self.result_path(job),
+            self.review_path(job),
+            self.pictures_dir(job),
+        ] {
+            self.unpublish(&path);
+        }
         remove_quietly(&self.frame_path(job, ext));
         remove_quietly(&self.result_path(job));
         remove_quietly(&self.review_path(job));
@@ -191,7 +241,14 @@ impl DataDir {
 
     /// Removes a job's frame only; a missing file is fine.
     pub fn remove_frame(&self, job: Uuid, ext: &str) {
+        self.unpublish(&self.frame_path(job, ext));
         remove_quietly(&self.frame_path(job, ext));
+    }
+
+    /// Removes a flight's survey; a missing one is fine.
+    pub fn remove_survey(&self, flight: Uuid) {
+        self.unpublish(&self.survey_path(flight));
+        remove_quietly(&self.survey_path(flight));
     }
 }
 

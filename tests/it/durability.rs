@@ -50,7 +50,7 @@ fn noise_frame(dir: &Path, (w, h): (usize, usize)) -> PathBuf {
 
 /// Submits `first` then `rest` as a flight (`query` after the CRS) and
 /// waits until `first`'s worker process runs; its flight and job ids.
-fn flight_with_running_first(
+pub(crate) fn flight_with_running_first(
     server: &Server,
     first: &Path,
     rest: &[PathBuf],
@@ -70,19 +70,19 @@ fn flight_with_running_first(
     (id, job)
 }
 
-fn jobs_of(server: &Server, flight: &str) -> Vec<Value> {
+pub(crate) fn jobs_of(server: &Server, flight: &str) -> Vec<Value> {
     server.get_json(&format!("/v1/flights/{flight}/jobs"))["items"]
         .as_array()
         .unwrap()
         .clone()
 }
 
-fn job_named<'a>(jobs: &'a [Value], image: &str) -> &'a Value {
+pub(crate) fn job_named<'a>(jobs: &'a [Value], image: &str) -> &'a Value {
     jobs.iter().find(|j| j["image"] == image).unwrap()
 }
 
 /// The id of the job of `image` in a flight.
-fn job_id(server: &Server, flight: &str, image: &str) -> String {
+pub(crate) fn job_id(server: &Server, flight: &str, image: &str) -> String {
     job_named(&jobs_of(server, flight), image)["id"]
         .as_str()
         .unwrap()
@@ -90,7 +90,7 @@ fn job_id(server: &Server, flight: &str, image: &str) -> String {
 }
 
 /// Waits until `f` holds, up to a minute.
-fn wait_until(what: &str, mut f: impl FnMut() -> bool) {
+pub(crate) fn wait_until(what: &str, mut f: impl FnMut() -> bool) {
     let deadline = Instant::now() + Duration::from_secs(120);
     while !f() {
         assert!(Instant::now() < deadline, "timed out waiting for {what}");

@@ -15,6 +15,7 @@ mod hostile;
 mod pictures;
 mod printed;
 mod real;
+mod replicas;
 mod s3;
 mod service;
 mod store_contract;

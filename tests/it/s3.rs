@@ -18,16 +18,16 @@ use crate::server::{problem, Server};
 use crate::service::{cli_output, flight, CRS};
 
 /// A moto_server on a free port of 127.0.0.1, stopped when dropped.
-struct Moto {
+pub(crate) struct Moto {
     child: Child,
-    endpoint: String,
+    pub(crate) endpoint: String,
     port: u16,
 }
 
 impl Moto {
     /// With `auth`, moto checks signatures and IAM policies after the three
     /// calls that create the test's IAM user.
-    fn start(auth: bool) -> Moto {
+    pub(crate) fn start(auth: bool) -> Moto {
         let port = TcpListener::bind("127.0.0.1:0")
             .unwrap()
             .local_addr()
@@ -57,7 +57,7 @@ impl Moto {
     }
 
     /// Runs fixture operations with a real S3 client (boto3).
-    fn ops(&self, key: &str, secret: &str, ops: Value) -> Value {
+    pub(crate) fn ops(&self, key: &str, secret: &str, ops: Value) -> Value {
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/s3_fixture.py");
         let mut child = Command::new("python3")
             .arg(script)
@@ -91,10 +91,10 @@ impl Drop for Moto {
 }
 
 /// Keys for moto without auth (any keys pass).
-const KEY: &str = "test-access-key";
-const SECRET: &str = "test-secret-key";
+pub(crate) const KEY: &str = "test-access-key";
+pub(crate) const SECRET: &str = "test-secret-key";
 
-fn aws_env<'a>(key: &'a str, secret: &'a str) -> [(&'a str, &'a str); 3] {
+pub(crate) fn aws_env<'a>(key: &'a str, secret: &'a str) -> [(&'a str, &'a str); 3] {
     [
         ("AWS_ACCESS_KEY_ID", key),
         ("AWS_SECRET_ACCESS_KEY", secret),

@@ -1,0 +1,192 @@
+//! The data folder's files in an object store, for replicas that share one
+//! queue (`--store postgres://...` with `--shared-files s3://bucket/prefix/`).
+//!
+//! The bucket holds the truth; each replica's data folder is a cache of it
+//! with the same layout (`frames/`, `results/`, `surveys/` under the
+//! prefix). Whoever writes a file publishes it; whoever reads one brings it
+//! in first: files that never change once written (frames, results,
+//! pictures) only when missing locally, files that change (a job's reviews,
+//! a flight's survey) on every read. So any replica can run any job and
+//! serve any result.
+
+use std::future::Future;
+use std::io;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use futures_util::StreamExt;
+use object_store::aws::AmazonS3;
+use object_store::path::Path as Key;
+use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
+
+use super::s3::{S3Error, S3Url, S3};
+
+pub struct SharedFiles {
+    client: Arc<AmazonS3>,
+    /// Where the files live, shown in messages: `s3://bucket/prefix/`.
+    url: String,
+    prefix: String,
+    /// Its own runtime: the calls block, from worker threads and handlers.
+    rt: Option<tokio::runtime::Runtime>,
+}
+
+impl std::fmt::Debug for SharedFiles {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SharedFiles")
+            .field("url", &self.url)
+            .finish()
+    }
+}
+
+impl Drop for SharedFiles {
+    fn drop(&mut self) {
+        if let Some(rt) = self.rt.take() {
+            rt.shutdown_background();
+        }
+    }
+}
+
+fn io_error(e: impl std::fmt::Display) -> io::Error {
+    io::Error::other(e.to_string())
+}
+
+/// Files whose content changes after they are first written.
+fn changes(rel: &Path) -> bool {
+    rel.starts_with("surveys") || rel.to_string_lossy().ends_with(".review.json")
+}
+
+impl SharedFiles {
+    /// The files under `url` (`s3://bucket/prefix/`), through the server's
+    /// S3 settings.
+    pub fn new(s3: &S3, url: &str) -> Result<SharedFiles, S3Error> {
+        let (bucket, prefix) = match S3Url::parse(url)? {
+            S3Url::Prefix { bucket, prefix } => (bucket, prefix),
+            S3Url::Object { .. } => {
+                return Err(S3Error::BadUrl(format!(
+                    "{url}: shared files need a prefix ending in '/'"
+                )))
+            }
+        };
+        let client = s3.client_for(&bucket)?;
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("shared-files")
+            .enable_all()
+            .build()
+            .map_err(|e| S3Error::BadUrl(format!("shared files: {e}")))?;
+        Ok(SharedFiles {
+            client,
+            url: format!("s3://{bucket}/{prefix}"),
+            prefix,
+            rt: Some(rt),
+        })
+    }
+
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    fn run<T: Send + 'static>(
+        &self,
+        f: impl Future<Output = io::Result<T>> + Send + 'static,
+    ) -> io::Result<T> {
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        self.rt
+            .as_ref()
+            .expect("runtime until drop")
+            .spawn(async move {
+                let _ = tx.send(f.await);
+            });
+        rx.recv()
+            .map_err(|_| io_error("the shared files' runtime stopped"))?
+    }
+
+    fn key(&self, rel: &Path) -> io::Result<Key> {
+        let rel = rel
+            .to_str()
+            .ok_or_else(|| io_error(format!("{}: not UTF-8", rel.display())))?;
+        Key::parse(format!("{}{rel}", self.prefix)).map_err(io_error)
+    }
+
+    /// Writes the local file (or every file of the folder) at `root/rel`
+    /// to the bucket.
+    pub fn publish(&self, root: &Path, rel: &Path) -> io::Result<()> {
+        let local = root.join(rel);
+        let files: Vec<PathBuf> = if local.is_dir() {
+            std::fs::read_dir(&local)?
+                .map(|e| e.map(|e| rel.join(e.file_name())))
+                .collect::<io::Result<_>>()?
+        } else {
+            vec![rel.to_path_buf()]
+        };
+        for rel in files {
+            let bytes = std::fs::read(root.join(&rel))?;
+            let key = self.key(&rel)?;
+            let client = self.client.clone();
+            self.run(async move {
+                client
+                    .put(&key, PutPayload::from(bytes))
+                    .await
+                    .map(|_| ())
+                    .map_err(io_error)
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Brings `root/rel` in from the bucket: a file that never changes only
+    /// when it is missing here, one that changes every time. No object: no
+    /// local file either.
+    pub fn bring_in(&self, root: &Path, rel: &Path) -> io::Result<()> {
+        let local = root.join(rel);
+        if !changes(rel) && local.exists() {
+            return Ok(());
+        }
+        let key = self.key(rel)?;
+        let client = self.client.clone();
+        let bytes = self.run(async move {
+            match client.get(&key).await {
+                Ok(got) => got.bytes().await.map(Some).map_err(io_error),
+                Err(object_store::Error::NotFound { .. }) => Ok(None),
+                Err(e) => Err(io_error(e)),
+            }
+        })?;
+        match bytes {
+            Some(bytes) => {
+                if let Some(parent) = local.parent() {
+                    std::fs::create_dir_all(parent)?;
+                }
+                // Whole or absent, as every file of the folder.
+                let tmp = local.with_extension(format!("{}.part", uuid::Uuid::now_v7()));
+                std::fs::write(&tmp, &bytes)?;
+                std::fs::rename(&tmp, &local)
+            }
+            None => match std::fs::remove_file(&local) {
+                Err(e) if e.kind() != io::ErrorKind::NotFound => Err(e),
+                _ => Ok(()),
+            },
+        }
+    }
+
+    /// Removes `rel` (a file, or every object under a folder) from the bucket.
+    pub fn remove(&self, rel: &Path) -> io::Result<()> {
+        let key = self.key(rel)?;
+        let client = self.client.clone();
+        self.run(async move {
+            match client.delete(&key).await {
+                Ok(()) | Err(object_store::Error::NotFound { .. }) => {}
+                Err(e) => return Err(io_error(e)),
+            }
+            // A folder's objects (a job's pictures).
+            let mut listed = client.list(Some(&key));
+            while let Some(meta) = listed.next().await {
+                let meta = meta.map_err(io_error)?;
+                match client.delete(&meta.location).await {
+                    Ok(()) | Err(object_store::Error::NotFound { .. }) => {}
+                    Err(e) => return Err(io_error(e)),
+                }
+            }
+            Ok(())
+        })
+    }
+}

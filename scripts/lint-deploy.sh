@@ -36,9 +36,19 @@ for name, svc in compose["services"].items():
     if "image" not in svc and "build" not in svc:
         sys.exit(f"lint-deploy: compose service {name} has neither image nor build")
 print(f"lint-deploy: {len(listed)} manifests valid; compose services: {', '.join(compose['services'])}")
+# Overlays: what they name exists.
+for overlay in sorted(p for p in pathlib.Path("deploy").iterdir() if p.is_dir() and p.name != "base"):
+    kust = yaml.safe_load((overlay / "kustomization.yaml").read_text())
+    for name in [*(r for r in kust.get("resources", [])), *(p["path"] for p in kust.get("patches", []) if "path" in p)]:
+        if not (overlay / name).exists():
+            sys.exit(f"lint-deploy: {overlay}/kustomization.yaml names {name}, which is missing")
+    print(f"lint-deploy: overlay {overlay.name} names only files it has")
 PY
 
-# A full render when kustomize is at hand (not on CI machines).
+# A full render of the base and every overlay when kustomize is at hand.
 if command -v kubectl >/dev/null 2>&1; then
-  kubectl kustomize deploy/base | kubernetes-validate --strict --quiet -
+  for dir in deploy/base deploy/shared-queue; do
+    kubectl kustomize "$dir" | kubernetes-validate --strict --quiet -
+    echo "lint-deploy: $dir renders and validates"
+  done
 fi

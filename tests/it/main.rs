@@ -1,5 +1,6 @@
 //! Integration tests: one binary, frames rendered with exact truth.
 
+mod moto;
 mod postgres;
 mod server;
 mod support;

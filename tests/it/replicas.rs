@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use serde_json::{json, Value};
 
 use crate::durability::{big_frame, flight_with_running_first, job_named, jobs_of, wait_until};
+use crate::moto::{aws_env, Moto, KEY, SECRET};
 use crate::postgres;
-use crate::s3::{aws_env, Moto, KEY, SECRET};
 use crate::server::Server;
 use crate::service::{cli_output, flight, CRS};
 

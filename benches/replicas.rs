@@ -1,0 +1,124 @@
+//! Replicas on one queue: the same flight run by one `serve` replica and by
+//! two, each with one worker, on one PostgreSQL (initdb'd for the run) and
+//! one bucket (moto_server). Prints the throughput of each and their ratio.
+//!
+//! Run: `cargo bench --bench replicas` (frames are the load bench's,
+//! generated once into the target folder). Under `cargo test` it does
+//! nothing.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use gcp_synth::{FileKind, FlightSpec};
+use serde_json::{json, Value};
+
+mod common;
+#[path = "../tests/it/moto.rs"]
+#[allow(dead_code)]
+mod moto;
+#[path = "../tests/it/postgres.rs"]
+#[allow(dead_code)]
+mod postgres;
+#[path = "../tests/it/server.rs"]
+#[allow(dead_code)]
+mod server;
+
+use moto::{aws_env, Moto, KEY, SECRET};
+use server::Server;
+
+const FRAMES: usize = 24;
+
+fn main() {
+    if !std::env::args().any(|a| a == "--bench") {
+        println!("replicas: run with `cargo bench --bench replicas`");
+        return;
+    }
+    let spec = FlightSpec {
+        frames: FRAMES,
+        width: 4000,
+        height: 3000,
+        markers: 8,
+        kind: FileKind::Jpeg,
+        seed: 21,
+        hard: false,
+    };
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("replica-frames");
+    if !dir.join("truth.csv").exists() {
+        eprintln!("generating {FRAMES} frames into {}", dir.display());
+        common::generate(&dir, &spec);
+    }
+    let frames: Vec<PathBuf> = (0..FRAMES)
+        .map(|i| dir.join(format!("frame_{i:04}.jpg")))
+        .collect();
+    let megapixels = (spec.width * spec.height * FRAMES) as f64 / 1e6;
+    let pg = postgres::Postgres::start();
+    let moto = Moto::start(false);
+    moto.ops(KEY, SECRET, json!([{"op": "bucket", "bucket": "bench"}]));
+
+    let modes = std::env::var("MODES").unwrap_or_else(|_| "apriltag;crosshair".into());
+    println!("| marker types | 1 replica | 2 replicas | ratio |");
+    println!("|---|---|---|---|");
+    for mode in modes.split(';') {
+        let one = run(&pg, &moto, &frames, 1, mode);
+        let two = run(&pg, &moto, &frames, 2, mode);
+        println!(
+            "| {mode} | {:.1} MP/s | {:.1} MP/s | {:.2}x |",
+            megapixels / one,
+            megapixels / two,
+            one / two
+        );
+    }
+    println!(
+        "\n{FRAMES} frames of {}x{} JPEG in one multipart request to the first replica, \
+         timed to the flight's end; each replica `--workers 1`, one PostgreSQL, one bucket \
+         (moto), on this machine ({} cores).",
+        spec.width,
+        spec.height,
+        std::thread::available_parallelism().map_or(0, |n| n.get())
+    );
+}
+
+/// Seconds from the upload's start to the flight's end with `n` replicas.
+fn run(pg: &postgres::Postgres, moto: &Moto, frames: &[PathBuf], n: usize, mode: &str) -> f64 {
+    let store = pg.database();
+    let data = tempfile::tempdir().unwrap();
+    let prefix = format!("s3://bench/{}/", uuid_like(&store));
+    let replicas: Vec<Server> = (0..n)
+        .map(|i| {
+            Server::start_env(
+                &data.path().join(format!("r{i}")),
+                &[
+                    "--store",
+                    &store,
+                    "--shared-files",
+                    &prefix,
+                    "--s3-endpoint",
+                    &moto.endpoint,
+                    "--workers",
+                    "1",
+                ],
+                &aws_env(KEY, SECRET),
+            )
+        })
+        .collect();
+    let paths: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
+    let started = Instant::now();
+    let r = replicas[0].post_files(
+        &format!("/v1/flights?crs=EPSG:32633&marker_types={mode}"),
+        &paths,
+    );
+    assert_eq!(r.status(), 201);
+    let id = r.json::<Value>().unwrap()["flight"]["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let done = replicas[0].wait_flight(&id);
+    let seconds = started.elapsed().as_secs_f64();
+    assert_eq!(done["jobs"]["succeeded"], FRAMES, "{done}");
+    seconds
+}
+
+/// The database's name, to keep each run's files apart in the bucket.
+fn uuid_like(url: &str) -> String {
+    url.rsplit('/').next().unwrap_or("run").to_string()
+}

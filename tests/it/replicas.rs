@@ -74,7 +74,16 @@ fn two_replicas_share_one_queue_run_each_job_once_and_serve_each_others_results(
     let paths: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
 
     let id = flight_id(a.post_files(&format!("/v1/flights?crs={CRS}"), &paths));
-    // Waited for on the other replica: its long-poll hears the changes.
+    // Followed on the other replica: its event stream hears every change
+    // (progress made on either) and ends with the flight.
+    let text = b.get_text(&format!("/v1/flights/{id}/events"));
+    let events: Vec<&str> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("event: "))
+        .collect();
+    assert_eq!(events.last(), Some(&"end"), "{text}");
+    assert!(events.len() > 3, "{text}");
+    // And its long-poll.
     let done = b.wait_flight(&id);
     assert_eq!(done["jobs"]["succeeded"], 20, "{done}");
     let jobs = jobs_of(&b, &id);

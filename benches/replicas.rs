@@ -12,6 +12,7 @@ use std::time::Instant;
 use gcp_synth::{FileKind, FlightSpec};
 use serde_json::{json, Value};
 
+#[allow(dead_code)]
 mod common;
 #[path = "../tests/it/moto.rs"]
 #[allow(dead_code)]
@@ -20,7 +21,6 @@ mod moto;
 #[allow(dead_code)]
 mod postgres;
 #[path = "../tests/it/server.rs"]
-#[allow(dead_code)]
 mod server;
 
 use moto::{aws_env, Moto, KEY, SECRET};

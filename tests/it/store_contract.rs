@@ -124,6 +124,21 @@ fn a_claim_is_a_lease_that_expires_into_the_queue_and_fails_on_the_last_attempt(
             error.message
         );
         assert_eq!(store.stats().unwrap().running, 0, "{name}");
+
+        // Canceled while its worker is lost: it ends canceled, not queued.
+        store
+            .create_flight(&JobParams::default(), &frames(1), None, None)
+            .unwrap();
+        let lost = claim(store, Duration::ZERO).expect("a queued job");
+        store.cancel_job(lost.job.id).unwrap();
+        assert!(claim(store, Duration::from_secs(2)).is_none(), "{name}");
+        let job = store.job(lost.job.id).unwrap().unwrap();
+        assert_eq!(
+            (job.state, job.cancel_requested),
+            (JobState::Canceled, false),
+            "{name}"
+        );
+        assert!(job.finished_at.is_some(), "{name}");
     }
 }
 

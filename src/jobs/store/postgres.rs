@@ -494,7 +494,8 @@ async fn reap_expired(
     let rows = tx
         .query(
             &format!(
-                "SELECT id, attempts FROM jobs WHERE state = 'running' AND lease_until < {NOW_MS}
+                "SELECT id, attempts, cancel_requested FROM jobs
+                 WHERE state = 'running' AND lease_until < {NOW_MS}
                  FOR UPDATE SKIP LOCKED"
             ),
             &[],
@@ -503,7 +504,16 @@ async fn reap_expired(
     for row in &rows {
         let id: JobId = row.get(0);
         let attempts = row.get::<_, i32>(1) as u32;
-        if attempts >= max_attempts {
+        if row.get::<_, bool>(2) {
+            // Canceled while its worker was lost: it ends canceled.
+            tx.execute(
+                "UPDATE jobs SET state = 'canceled', finished_at = $2, lease_token = NULL,
+                     lease_until = NULL, cancel_requested = FALSE
+                 WHERE id = $1",
+                &[&id, &now_millis()],
+            )
+            .await?;
+        } else if attempts >= max_attempts {
             let error = lease_expired_error(attempts);
             tx.execute(
                 "UPDATE jobs SET state = 'failed', finished_at = $2, error_code = $3,

@@ -238,7 +238,17 @@ impl SqliteStore {
             state.leases.remove(&id);
             state.running -= 1;
             let job = state.jobs.get_mut(&id).expect("leased job exists");
-            if job.attempts >= self.lease.max_attempts {
+            if job.cancel_requested {
+                // Canceled while its worker was lost: it ends canceled.
+                let finished = now_millis();
+                db.execute(
+                    "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1",
+                    params![id.to_string(), finished],
+                )?;
+                job.state = JobState::Canceled;
+                job.finished_at = Some(finished);
+                job.cancel_requested = false;
+            } else if job.attempts >= self.lease.max_attempts {
                 let error = lease_expired_error(job.attempts);
                 let finished = now_millis();
                 db.execute(

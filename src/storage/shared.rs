@@ -46,9 +46,6 @@ impl Drop for SharedFiles {
     }
 }
 
-/// Objects written at once by one `publish`.
-const PUTS_AT_ONCE: usize = 8;
-
 fn io_error(e: impl std::fmt::Display) -> io::Error {
     io::Error::other(e.to_string())
 }
@@ -111,40 +108,30 @@ impl SharedFiles {
         Key::parse(format!("{}{rel}", self.prefix)).map_err(io_error)
     }
 
-    /// Writes the local files (or every file of a folder) at `root/rel`
-    /// for each of `rels` to the bucket, a few at once.
-    pub fn publish(&self, root: &Path, rels: &[&Path]) -> io::Result<()> {
-        let mut files: Vec<(PathBuf, Key)> = Vec::new();
-        for rel in rels {
-            let local = root.join(rel);
-            if local.is_dir() {
-                for entry in std::fs::read_dir(&local)? {
-                    let rel = rel.join(entry?.file_name());
-                    files.push((root.join(&rel), self.key(&rel)?));
-                }
-            } else {
-                files.push((local, self.key(rel)?));
-            }
+    /// Writes the local file (or every file of the folder) at `root/rel`
+    /// to the bucket.
+    pub fn publish(&self, root: &Path, rel: &Path) -> io::Result<()> {
+        let local = root.join(rel);
+        let files: Vec<PathBuf> = if local.is_dir() {
+            std::fs::read_dir(&local)?
+                .map(|e| e.map(|e| rel.join(e.file_name())))
+                .collect::<io::Result<_>>()?
+        } else {
+            vec![rel.to_path_buf()]
+        };
+        for rel in files {
+            let bytes = std::fs::read(root.join(&rel))?;
+            let key = self.key(&rel)?;
+            let client = self.client.clone();
+            self.run(async move {
+                client
+                    .put(&key, PutPayload::from(bytes))
+                    .await
+                    .map(|_| ())
+                    .map_err(io_error)
+            })?;
         }
-        let client = self.client.clone();
-        self.run(async move {
-            let puts = files.into_iter().map(|(local, key)| {
-                let client = client.clone();
-                async move {
-                    let bytes = tokio::fs::read(&local).await?;
-                    client
-                        .put(&key, PutPayload::from(bytes))
-                        .await
-                        .map(|_| ())
-                        .map_err(io_error)
-                }
-            });
-            let mut puts = futures_util::stream::iter(puts).buffer_unordered(PUTS_AT_ONCE);
-            while let Some(put) = puts.next().await {
-                put?;
-            }
-            Ok(())
-        })
+        Ok(())
     }
 
     /// Brings `root/rel` in from the bucket: a file that never changes only

@@ -107,24 +107,10 @@ impl DataDir {
 
     /// Writes the file (or folder) at `path` to the shared bucket, if any.
     pub fn publish(&self, path: &Path) -> io::Result<()> {
-        self.publish_all(&[path])
-    }
-
-    /// Writes the files (or folders) at `paths`, all in this folder, to the
-    /// shared bucket, if any, a few at once.
-    pub fn publish_all(&self, paths: &[&Path]) -> io::Result<()> {
-        let Some(shared) = &self.shared else {
-            return Ok(());
-        };
-        let rels = paths
-            .iter()
-            .map(|p| {
-                p.strip_prefix(&self.root).map_err(|_| {
-                    io::Error::other(format!("{} is not in the data folder", p.display()))
-                })
-            })
-            .collect::<io::Result<Vec<_>>>()?;
-        shared.publish(&self.root, &rels)
+        match (&self.shared, path.strip_prefix(&self.root)) {
+            (Some(shared), Ok(rel)) => shared.publish(&self.root, rel),
+            _ => Ok(()),
+        }
     }
 
     /// Brings the file at `path` in from the shared bucket, if any (see

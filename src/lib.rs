@@ -14,6 +14,7 @@
 //! benchmarks) come from the `gcp-synth` crate beside this one.
 
 pub mod api;
+pub mod background;
 pub mod cli;
 pub mod config;
 pub mod error_code;

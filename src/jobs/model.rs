@@ -139,6 +139,27 @@ pub struct Export {
     pub attempts: u32,
 }
 
+impl Export {
+    /// Counts an attempt to write the results: written, or failed with the
+    /// reason (`give_up` marks it failed for good, else it stays pending).
+    pub fn record_attempt(&mut self, result: Result<(), String>, give_up: bool) {
+        self.attempts += 1;
+        match result {
+            Ok(()) => {
+                self.state = ExportState::Written;
+                self.error = None;
+                self.written_at = Some(now_millis());
+            }
+            Err(e) => {
+                self.error = Some(e);
+                if give_up {
+                    self.state = ExportState::Failed;
+                }
+            }
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum ExportState {

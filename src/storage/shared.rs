@@ -20,14 +20,15 @@ use object_store::path::Path as Key;
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
 
 use super::s3::{S3Error, S3Url, S3};
+use crate::background::Background;
 
 pub struct SharedFiles {
     client: Arc<AmazonS3>,
     /// Where the files live, shown in messages: `s3://bucket/prefix/`.
     url: String,
     prefix: String,
-    /// Its own runtime: the calls block, from worker threads and handlers.
-    rt: Option<tokio::runtime::Runtime>,
+    /// The calls block, from worker threads and handlers.
+    rt: Background,
 }
 
 impl std::fmt::Debug for SharedFiles {
@@ -35,14 +36,6 @@ impl std::fmt::Debug for SharedFiles {
         f.debug_struct("SharedFiles")
             .field("url", &self.url)
             .finish()
-    }
-}
-
-impl Drop for SharedFiles {
-    fn drop(&mut self) {
-        if let Some(rt) = self.rt.take() {
-            rt.shutdown_background();
-        }
     }
 }
 
@@ -68,17 +61,13 @@ impl SharedFiles {
             }
         };
         let client = s3.client_for(&bucket)?;
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .thread_name("shared-files")
-            .enable_all()
-            .build()
+        let rt = Background::new("shared-files")
             .map_err(|e| S3Error::BadUrl(format!("shared files: {e}")))?;
         Ok(SharedFiles {
             client,
             url: format!("s3://{bucket}/{prefix}"),
             prefix,
-            rt: Some(rt),
+            rt,
         })
     }
 
@@ -90,15 +79,9 @@ impl SharedFiles {
         &self,
         f: impl Future<Output = io::Result<T>> + Send + 'static,
     ) -> io::Result<T> {
-        let (tx, rx) = std::sync::mpsc::sync_channel(1);
         self.rt
-            .as_ref()
-            .expect("runtime until drop")
-            .spawn(async move {
-                let _ = tx.send(f.await);
-            });
-        rx.recv()
-            .map_err(|_| io_error("the shared files' runtime stopped"))?
+            .run(f)
+            .ok_or_else(|| io_error("the shared files' runtime stopped"))?
     }
 
     fn key(&self, rel: &Path) -> io::Result<Key> {

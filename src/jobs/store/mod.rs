@@ -117,6 +117,43 @@ pub struct NewJob {
     pub source: Option<(String, Option<String>)>,
 }
 
+impl NewJob {
+    /// The state a new job starts in, its error and end time: failed when
+    /// refused at submission, fetching when its frame is in object storage,
+    /// else queued.
+    pub(crate) fn starts(&self, created: Millis) -> (JobState, Option<JobError>, Option<Millis>) {
+        match (&self.rejected, &self.source) {
+            (Some(e), _) => (JobState::Failed, Some(e.clone()), Some(created)),
+            (None, Some(_)) => (JobState::Fetching, None, None),
+            (None, None) => (JobState::Queued, None, None),
+        }
+    }
+}
+
+/// A new flight's record; a name twice in `jobs` is refused.
+pub(crate) fn new_flight(
+    params: &JobParams,
+    jobs: &[NewJob],
+    export_to: Option<String>,
+) -> Result<FlightRecord, StoreError> {
+    let mut seen = std::collections::HashSet::new();
+    if let Some(job) = jobs.iter().find(|j| !seen.insert(j.image.as_str())) {
+        return Err(StoreError::DuplicateImage(job.image.clone()));
+    }
+    Ok(FlightRecord {
+        id: uuid::Uuid::now_v7(),
+        created_at: now_millis(),
+        params: params.clone(),
+        export: export_to.map(|to| Export {
+            to,
+            state: ExportState::Pending,
+            error: None,
+            written_at: None,
+            attempts: 0,
+        }),
+    })
+}
+
 /// The lease a claim holds: which job, and the token that tells this claim
 /// from a later one of the same job.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -26,6 +26,7 @@ use tokio_postgres::{NoTls, Row};
 
 use super::sqlite::lease_expired_error;
 use super::*;
+use crate::background::Background;
 
 /// The database's clock in milliseconds since the epoch.
 const NOW_MS: &str = "(extract(epoch from clock_timestamp()) * 1000)::bigint";
@@ -118,23 +119,14 @@ impl Wake {
 /// The PostgreSQL job store; share it in an `Arc`.
 pub struct PgStore {
     lease: LeaseConfig,
-    /// Its own runtime (dropped in the background: a store may be dropped
-    /// inside the server's runtime).
-    rt: Option<tokio::runtime::Runtime>,
+    /// The calls block, from worker threads and handlers.
+    rt: Background,
     pool: Pool,
     changed: watch::Sender<u64>,
     wake: Arc<Wake>,
     /// The last progress each running lease reported from this process
     /// (to announce only changes).
     reported: Mutex<HashMap<JobId, Progress>>,
-}
-
-impl Drop for PgStore {
-    fn drop(&mut self) {
-        if let Some(rt) = self.rt.take() {
-            rt.shutdown_background();
-        }
-    }
 }
 
 fn pool_error(e: impl std::fmt::Display) -> StoreError {
@@ -147,12 +139,7 @@ impl PgStore {
     /// changes.
     pub fn connect(url: &str, lease: LeaseConfig) -> Result<PgStore, StoreError> {
         let config: tokio_postgres::Config = url.parse()?;
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .thread_name("pg-store")
-            .enable_all()
-            .build()
-            .map_err(pool_error)?;
+        let rt = Background::new("pg-store").map_err(pool_error)?;
         let manager = Manager::from_config(
             config.clone(),
             NoTls,
@@ -168,7 +155,7 @@ impl PgStore {
         let wake = Arc::new(Wake::default());
         let store = PgStore {
             lease,
-            rt: Some(rt),
+            rt,
             pool,
             changed,
             wake,
@@ -189,15 +176,9 @@ impl PgStore {
         &self,
         f: impl Future<Output = Result<T, StoreError>> + Send + 'static,
     ) -> Result<T, StoreError> {
-        let (tx, rx) = std::sync::mpsc::sync_channel(1);
         self.rt
-            .as_ref()
-            .expect("runtime until drop")
-            .spawn(async move {
-                let _ = tx.send(f.await);
-            });
-        rx.recv()
-            .map_err(|_| pool_error("the store's runtime stopped"))?
+            .run(f)
+            .ok_or_else(|| pool_error("the store's runtime stopped"))?
     }
 
     /// Runs `f` with a pooled connection.
@@ -221,7 +202,7 @@ impl PgStore {
         let changed = self.changed.clone();
         let wake = self.wake.clone();
         let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel::<Result<(), StoreError>>(1);
-        self.rt.as_ref().expect("runtime").spawn(async move {
+        self.rt.spawn(async move {
             let mut ready = Some(ready_tx);
             loop {
                 match listen_once(&config, &changed, &wake, &mut ready).await {
@@ -411,11 +392,7 @@ async fn insert_jobs(
     let created = now_millis();
     let mut out = Vec::with_capacity(jobs.len());
     for new in jobs {
-        let (state, error, finished) = match (&new.rejected, &new.source) {
-            (Some(e), _) => (JobState::Failed, Some(e.clone()), Some(created)),
-            (None, Some(_)) => (JobState::Fetching, None, None),
-            (None, None) => (JobState::Queued, None, None),
-        };
+        let (state, error, finished) = new.starts(created);
         let (source, source_etag) = new.source.clone().unzip();
         let source_etag = source_etag.flatten();
         let row = tx
@@ -594,22 +571,7 @@ impl JobStore for PgStore {
         export_to: Option<String>,
         idem: Option<&IdemKey>,
     ) -> Result<FlightRecord, StoreError> {
-        let mut seen = std::collections::HashSet::new();
-        if let Some(job) = jobs.iter().find(|j| !seen.insert(j.image.as_str())) {
-            return Err(StoreError::DuplicateImage(job.image.clone()));
-        }
-        let flight = FlightRecord {
-            id: uuid::Uuid::now_v7(),
-            created_at: now_millis(),
-            params: params.clone(),
-            export: export_to.map(|to| Export {
-                to,
-                state: ExportState::Pending,
-                error: None,
-                written_at: None,
-                attempts: 0,
-            }),
-        };
+        let flight = new_flight(params, jobs, export_to)?;
         let (record, jobs, idem) = (flight.clone(), jobs.to_vec(), idem.cloned());
         self.with(move |mut c| async move {
             let tx = c.transaction().await?;
@@ -1155,20 +1117,7 @@ impl JobStore for PgStore {
             let Some(mut export) = flight_from_row(&row)?.export else {
                 return Ok(());
             };
-            export.attempts += 1;
-            match result {
-                Ok(()) => {
-                    export.state = ExportState::Written;
-                    export.error = None;
-                    export.written_at = Some(now_millis());
-                }
-                Err(e) => {
-                    export.error = Some(e);
-                    if give_up {
-                        export.state = ExportState::Failed;
-                    }
-                }
-            }
+            export.record_attempt(result, give_up);
             tx.execute(
                 "UPDATE flights SET export_state = $2, export_error = $3, export_written_at = $4,
                      export_attempts = $5 WHERE id = $1",

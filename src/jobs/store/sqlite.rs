@@ -291,22 +291,7 @@ impl JobStore for SqliteStore {
         export_to: Option<String>,
         idem: Option<&IdemKey>,
     ) -> Result<FlightRecord, StoreError> {
-        let flight = FlightRecord {
-            id: uuid::Uuid::now_v7(),
-            created_at: now_millis(),
-            params: params.clone(),
-            export: export_to.map(|to| Export {
-                to,
-                state: ExportState::Pending,
-                error: None,
-                written_at: None,
-                attempts: 0,
-            }),
-        };
-        let mut seen = std::collections::HashSet::new();
-        if let Some(job) = jobs.iter().find(|j| !seen.insert(j.image.as_str())) {
-            return Err(StoreError::DuplicateImage(job.image.clone()));
-        }
+        let flight = new_flight(params, jobs, export_to)?;
         let mut db = self.db();
         let tx = db.transaction()?;
         tx.execute(
@@ -716,20 +701,7 @@ impl JobStore for SqliteStore {
         else {
             return Ok(());
         };
-        export.attempts += 1;
-        match result {
-            Ok(()) => {
-                export.state = ExportState::Written;
-                export.error = None;
-                export.written_at = Some(now_millis());
-            }
-            Err(e) => {
-                export.error = Some(e);
-                if give_up {
-                    export.state = ExportState::Failed;
-                }
-            }
-        }
+        export.record_attempt(result, give_up);
         db.execute(
             "UPDATE flights SET export_state = ?2, export_error = ?3, export_written_at = ?4,
                  export_attempts = ?5 WHERE id = ?1",
@@ -965,11 +937,7 @@ fn insert_jobs(
     let created = now_millis();
     let mut out = Vec::with_capacity(jobs.len());
     for new in jobs {
-        let (state, error, finished) = match (&new.rejected, &new.source) {
-            (Some(e), _) => (JobState::Failed, Some(e.clone()), Some(created)),
-            (None, Some(_)) => (JobState::Fetching, None, None),
-            (None, None) => (JobState::Queued, None, None),
-        };
+        let (state, error, finished) = new.starts(created);
         let (source, source_etag) = new.source.clone().unzip();
         let source_etag = source_etag.flatten();
         tx.execute(

@@ -993,6 +993,10 @@ impl JobStore for PgStore {
     }
 
     fn release_unrecorded(&self, lease: &Lease) {
+        self.reported
+            .lock()
+            .expect("reported lock")
+            .remove(&lease.job);
         let lease = *lease;
         let released = self.with(move |c| async move {
             c.execute(

@@ -199,6 +199,9 @@ impl WorkerPool {
 struct Beat {
     last: Option<Instant>,
     progress: Progress,
+    /// Heartbeats the store could not take (logged as other store
+    /// failures are: at the start, then once a minute).
+    failures: Backoff,
 }
 
 impl Beat {
@@ -206,6 +209,7 @@ impl Beat {
         Beat {
             last: None,
             progress: Progress::default(),
+            failures: Backoff::default(),
         }
     }
 }
@@ -532,14 +536,18 @@ impl Worker {
             return None;
         }
         beat.last = Some(Instant::now());
-        match self.store.heartbeat(&claim.lease, &beat.progress) {
-            Ok(LeaseState::Held { cancel: false }) => None,
-            Ok(LeaseState::Held { cancel: true }) => Some(Some((Outcome::Canceled, 0.0))),
-            Ok(LeaseState::Lost) => Some(None),
+        let state = match self.store.heartbeat(&claim.lease, &beat.progress) {
+            Ok(state) => state,
             Err(e) => {
-                tracing::warn!(error = %e, "cannot renew the job's lease");
-                None
+                beat.failures.failed("cannot renew the job's lease", &e);
+                return None;
             }
+        };
+        beat.failures.recovered("the job's lease is renewed again");
+        match state {
+            LeaseState::Held { cancel: false } => None,
+            LeaseState::Held { cancel: true } => Some(Some((Outcome::Canceled, 0.0))),
+            LeaseState::Lost => Some(None),
         }
     }
 

@@ -151,20 +151,28 @@ impl SharedFiles {
         }
     }
 
-    /// Removes `rel` (a file, or every object under a folder) from the bucket.
-    pub fn remove(&self, rel: &Path) -> io::Result<()> {
-        let key = self.key(rel)?;
+    /// Removes the objects of `files` and every object under `folders`
+    /// from the bucket; missing ones are fine.
+    pub fn remove(&self, files: &[&Path], folders: &[&Path]) -> io::Result<()> {
+        let files = files
+            .iter()
+            .map(|f| self.key(f))
+            .collect::<io::Result<Vec<_>>>()?;
+        let folders = folders
+            .iter()
+            .map(|f| self.key(f))
+            .collect::<io::Result<Vec<_>>>()?;
         let client = self.client.clone();
         self.run(async move {
-            match client.delete(&key).await {
-                Ok(()) | Err(object_store::Error::NotFound { .. }) => {}
-                Err(e) => return Err(io_error(e)),
+            let mut keys = files;
+            for folder in &folders {
+                let mut listed = client.list(Some(folder));
+                while let Some(meta) = listed.next().await {
+                    keys.push(meta.map_err(io_error)?.location);
+                }
             }
-            // A folder's objects (a job's pictures).
-            let mut listed = client.list(Some(&key));
-            while let Some(meta) = listed.next().await {
-                let meta = meta.map_err(io_error)?;
-                match client.delete(&meta.location).await {
+            for key in &keys {
+                match client.delete(key).await {
                     Ok(()) | Err(object_store::Error::NotFound { .. }) => {}
                     Err(e) => return Err(io_error(e)),
                 }

@@ -122,11 +122,21 @@ impl DataDir {
         }
     }
 
-    fn unpublish(&self, path: &Path) {
-        if let (Some(shared), Ok(rel)) = (&self.shared, path.strip_prefix(&self.root)) {
-            if let Err(e) = shared.remove(rel) {
-                tracing::warn!(path = %rel.display(), bucket = shared.url(), error = %e, "cannot remove a shared file");
-            }
+    /// `paths` (all in this folder) relative to it.
+    fn relative<'a>(&self, paths: &[&'a Path]) -> Vec<&'a Path> {
+        paths
+            .iter()
+            .filter_map(|p| p.strip_prefix(&self.root).ok())
+            .collect()
+    }
+
+    /// Removes `files` and the `folders`' files from the shared bucket,
+    /// if any (all in this folder); a failure is logged.
+    fn unpublish(&self, files: &[&Path], folders: &[&Path]) {
+        let Some(shared) = &self.shared else { return };
+        let (files, folders) = (self.relative(files), self.relative(folders));
+        if let Err(e) = shared.remove(&files, &folders) {
+            tracing::warn!(bucket = shared.url(), error = %e, "cannot remove shared files");
         }
     }
 
@@ -220,14 +230,14 @@ impl DataDir {
     /// Removes a job's frame, result, pictures and reviews; missing files
     /// are fine.
     pub fn remove_job_files(&self, job: Uuid, ext: &str) {
-        for path in [
-            self.frame_path(job, ext),
-            self.result_path(job),
-            self.review_path(job),
-            self.pictures_dir(job),
-        ] {
-            self.unpublish(&path);
-        }
+        self.unpublish(
+            &[
+                &self.frame_path(job, ext),
+                &self.result_path(job),
+                &self.review_path(job),
+            ],
+            &[&self.pictures_dir(job)],
+        );
         remove_quietly(&self.frame_path(job, ext));
         remove_quietly(&self.result_path(job));
         remove_quietly(&self.review_path(job));
@@ -241,13 +251,13 @@ impl DataDir {
 
     /// Removes a job's frame only; a missing file is fine.
     pub fn remove_frame(&self, job: Uuid, ext: &str) {
-        self.unpublish(&self.frame_path(job, ext));
+        self.unpublish(&[&self.frame_path(job, ext)], &[]);
         remove_quietly(&self.frame_path(job, ext));
     }
 
     /// Removes a flight's survey; a missing one is fine.
     pub fn remove_survey(&self, flight: Uuid) {
-        self.unpublish(&self.survey_path(flight));
+        self.unpublish(&[&self.survey_path(flight)], &[]);
         remove_quietly(&self.survey_path(flight));
     }
 }

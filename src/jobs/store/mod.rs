@@ -359,22 +359,17 @@ pub trait JobStore: Send + Sync {
 /// The store as the server shares it.
 pub type SharedStore = std::sync::Arc<dyn JobStore>;
 
-/// Opens the store a `--store` value names: `postgres://...` (or
-/// `postgresql://`) for PostgreSQL, else the SQLite file at `sqlite_path`.
+/// Opens the store a `--store` value names (a PostgreSQL URL), or without
+/// one the SQLite file at `sqlite_path`.
 pub fn open(
     url: Option<&str>,
     sqlite_path: &std::path::Path,
     lease: LeaseConfig,
 ) -> Result<SharedStore, StoreError> {
-    match url {
-        Some(url) if url.starts_with("postgres://") || url.starts_with("postgresql://") => {
-            Ok(std::sync::Arc::new(PgStore::connect(url, lease)?))
-        }
-        _ => Ok(std::sync::Arc::new(SqliteStore::open_with(
-            sqlite_path,
-            lease,
-        )?)),
-    }
+    Ok(match url {
+        Some(url) => std::sync::Arc::new(PgStore::connect(url, lease)?),
+        None => std::sync::Arc::new(SqliteStore::open_with(sqlite_path, lease)?),
+    })
 }
 
 /// What a job's record becomes when its end is recorded.

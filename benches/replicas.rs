@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use gcp_synth::{FileKind, FlightSpec};
-use serde_json::{json, Value};
+use serde_json::json;
 
 #[allow(dead_code)]
 mod common;
@@ -103,15 +103,10 @@ fn run(pg: &postgres::Postgres, moto: &Moto, frames: &[PathBuf], n: usize, mode:
         .collect();
     let paths: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
     let started = Instant::now();
-    let r = replicas[0].post_files(
+    let id = replicas[0].post_flight(
         &format!("/v1/flights?crs=EPSG:32633&marker_types={mode}"),
         &paths,
     );
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().unwrap()["flight"]["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
     let done = replicas[0].wait_flight(&id);
     let seconds = started.elapsed().as_secs_f64();
     assert_eq!(done["jobs"]["succeeded"], FRAMES, "{done}");

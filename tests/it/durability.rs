@@ -138,12 +138,7 @@ fn a_dying_worker_costs_a_retry_and_three_deaths_fail_the_job() {
     let server = Server::start(&dir.path().join("d"), &["--workers", "2"]);
     let mut upload: Vec<&Path> = vec![retried.as_path(), doomed.as_path()];
     upload.extend(frames.iter().map(|p| p.as_path()));
-    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &upload);
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().unwrap()["flight"]["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let id = server.post_flight(&format!("/v1/flights?crs={CRS}"), &upload);
 
     let kill = |image: &str| {
         let job = job_id(&server, &id, image);

@@ -428,15 +428,10 @@ fn georeferenced_frames_give_byte_exact_gcp_files_from_the_cli_and_the_service()
     let data = tempfile::tempdir().unwrap();
     let server = Server::start(&data.path().join("d"), &[]);
     let paths: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
-    let r = server.post_files(
+    let id = server.post_flight(
         "/v1/flights?crs=EPSG:32611&marker_types=apriltag,crosshair&min_target_px=30",
         &paths,
     );
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().unwrap()["flight"]["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
     let r = server
         .client
         .put(server.url(&format!("/v1/flights/{id}/survey")))
@@ -726,15 +721,10 @@ fn unplaceable_frames_are_said_and_printed_targets_can_be_assigned_by_hand() {
     // the same gcp_list.txt as the command line's.
     let data = tempfile::tempdir().unwrap();
     let server = Server::start(&data.path().join("d"), &[]);
-    let r = server.post_files(
+    let id = server.post_flight(
         "/v1/flights?crs=EPSG:32611&marker_types=apriltag,crosshair&min_target_px=30",
         &[frames[0].as_path()],
     );
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().unwrap()["flight"]["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
     let put = |what: &str, body: String| {
         server
             .client

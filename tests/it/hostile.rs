@@ -335,12 +335,7 @@ fn a_flight_cannot_grow_past_its_frame_limit() {
     let dir = tempfile::tempdir().unwrap();
     let server = Server::start(&dir.path().join("d"), &["--max-frames-per-flight", "2"]);
     let two: Vec<&Path> = frames[..2].iter().map(|p| p.as_path()).collect();
-    let r = server.post_files(&format!("/v1/flights?crs={CRS}"), &two);
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().unwrap()["flight"]["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let id = server.post_flight(&format!("/v1/flights?crs={CRS}"), &two);
     let r = server.post_files(&format!("/v1/flights/{id}/frames"), &[frames[2].as_path()]);
     let v = problem(r, 413, "too_many_frames");
     assert!(v["detail"].as_str().unwrap().contains("3 frames"), "{v}");

@@ -53,14 +53,6 @@ fn frames(dir: &Path, n: usize) -> Vec<PathBuf> {
         .collect()
 }
 
-fn flight_id(r: reqwest::blocking::Response) -> String {
-    assert_eq!(r.status(), 201);
-    r.json::<Value>().unwrap()["flight"]["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
-}
-
 #[test]
 fn two_replicas_share_one_queue_run_each_job_once_and_serve_each_others_results() {
     let pg = postgres::shared();
@@ -73,7 +65,7 @@ fn two_replicas_share_one_queue_run_each_job_once_and_serve_each_others_results(
     let frames = frames(dir.path(), 20);
     let paths: Vec<&Path> = frames.iter().map(|p| p.as_path()).collect();
 
-    let id = flight_id(a.post_files(&format!("/v1/flights?crs={CRS}"), &paths));
+    let id = a.post_flight(&format!("/v1/flights?crs={CRS}"), &paths);
     // Followed on the other replica: its event stream hears every change
     // (progress made on either) and ends with the flight.
     let text = b.get_text(&format!("/v1/flights/{id}/events"));

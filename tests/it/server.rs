@@ -132,6 +132,17 @@ impl Server {
             .unwrap()
     }
 
+    /// Posts `files` as a new flight (`path` with its query), asserts the
+    /// 201 and returns the flight's id.
+    pub fn post_flight(&self, path: &str, files: &[&Path]) -> String {
+        let r = self.post_files(path, files);
+        assert_eq!(r.status(), 201, "POST {path}");
+        r.json::<Value>().unwrap()["flight"]["id"]
+            .as_str()
+            .expect("a flight id")
+            .to_string()
+    }
+
     /// Waits for a job to end (long-poll) and returns it.
     pub fn wait_job(&self, id: &str) -> Value {
         self.wait(&format!("/v1/jobs/{id}"), |v| {

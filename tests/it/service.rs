@@ -688,12 +688,7 @@ fn two_requests_adding_the_same_frame_name_at_once_record_it_once() {
     .unwrap();
     let first = frames.join("frame_0000.png");
     let server = Server::start(&dir.path().join("data"), &[]);
-    let r = server.post_files("/v1/flights?crs=EPSG:4326", &[&first]);
-    assert_eq!(r.status(), 201);
-    let flight = r.json::<Value>().unwrap()["flight"]["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let flight = server.post_flight("/v1/flights?crs=EPSG:4326", &[&first]);
     for round in 0..5 {
         // A fresh name each round, sent from two folders at once, as two
         // clients would.

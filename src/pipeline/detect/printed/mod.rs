@@ -93,6 +93,10 @@ pub struct Params {
     /// Largest ratio of two opposite arms' lengths (perspective, a side
     /// partly hidden).
     pub max_arm_ratio: f64,
+    /// Largest ratio of two opposite arms' lengths when the longer one is
+    /// cut back to where its bar was last seen (see `even_out`): a bar's
+    /// end is measured to a step, so the two differ by perspective only.
+    pub max_cut_arm_ratio: f64,
     /// Largest correlation the design may reach again about one board
     /// away (see `repeats`): a lattice's next copy, partly hidden or at
     /// the lattice's edge, still reaches well over it.
@@ -121,6 +125,7 @@ impl Default for Params {
             max_arm_offset_px: 1.0,
             max_width_spread: 0.4,
             max_arm_ratio: 1.6,
+            max_cut_arm_ratio: 1.15,
             size_slack: 1.1,
             max_repeat_score: 0.6,
             max_continuation: 0.4,
@@ -266,6 +271,7 @@ impl PrintedDetector {
         };
         let mut centre = c.centre;
         let mut width = width0;
+        let is_bar = design.kind == DesignKind::Cross;
         // Two passes: the first near the centre from the candidate's
         // guesses, the second along the whole arms from the first's lines.
         let mut arms: [Arm; 4] = Default::default();
@@ -339,7 +345,10 @@ impl PrintedDetector {
                     }
                     // The second pass follows the arms to their ends:
                     // opposite arms differ by perspective only.
-                    let (a, b) = (a.length, b.length);
+                    if pass == 1 && is_bar {
+                        even_out(&mut arms, l, p.max_arm_ratio, p.max_cut_arm_ratio);
+                    }
+                    let (a, b) = (arms[l].length, arms[l + 2].length);
                     if pass == 1 && a.max(b) > p.max_arm_ratio * a.min(b) {
                         return Err(Rejection::UnevenArms);
                     }
@@ -723,6 +732,25 @@ fn arms_offset(a: &Arm, b: &Arm, line: (Pt, Pt)) -> f64 {
     match (median(a), median(b)) {
         (Some(ma), Some(mb)) => (ma - mb).abs(),
         _ => 0.0,
+    }
+}
+
+/// Opposite arms `l` and `l + 2` of a cross's bar whose lengths differ
+/// more than `max_ratio`: the longer one ends where its bar was last seen,
+/// when that evens them out. Past a bar's end one side of the profile may
+/// stay at board level (a shadow's edge, dark ground against one side),
+/// which keeps the walk on the "board" with no bar in it.
+fn even_out(arms: &mut [Arm; 4], l: usize, max_ratio: f64, max_cut_ratio: f64) {
+    let (a, b) = (arms[l].length, arms[l + 2].length);
+    if a.max(b) <= max_ratio * a.min(b) {
+        return;
+    }
+    let (long, short) = if a > b { (l, l + 2) } else { (l + 2, l) };
+    if let Some(end) = arms[long].bar_end {
+        let s = arms[short].length;
+        if end < arms[long].length && end.max(s) <= max_cut_ratio * end.min(s) {
+            arms[long].length = end;
+        }
     }
 }
 

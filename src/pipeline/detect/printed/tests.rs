@@ -118,7 +118,7 @@ fn an_arm_ends_where_its_bar_ends_whatever_the_ground_beyond() {
     // the bar's line (the board seems to go on there), or a light path
     // twice the bar's width running on from the end. Neither lengthens
     // that arm: the cross is found, at its centre.
-    let grounds: [(&str, &Ground); 3] = [
+    let grounds: [(&str, &Ground); 4] = [
         ("dark beside", &|u, v| {
             if u > 0.0 && v > 0.0 {
                 25.0
@@ -129,6 +129,19 @@ fn an_arm_ends_where_its_bar_ends_whatever_the_ground_beyond() {
         ("dark band", &|u, v| {
             if u > 0.0 && v.abs() < 40.0 && v > -10.0 {
                 25.0
+            } else {
+                170.0
+            }
+        }),
+        // A shadow's edge along the bar's line past its end: light ground
+        // on one side, shadow as dark as the board on the other, up to
+        // 1.75 arms out. The walk stays "on the board" there with no bar
+        // in it, and ends where the shadow does.
+        ("light and shadow", &|u, v| {
+            if u > 0.0 && v > 0.0 && u < 105.0 {
+                25.0
+            } else if u > 0.0 && v <= 0.0 {
+                235.0
             } else {
                 170.0
             }

@@ -39,6 +39,10 @@ pub struct Arm {
     pub profiles: usize,
     /// Distance from the centre where the board ends along this arm.
     pub length: f64,
+    /// Distance from the centre where the bar's centre line was last
+    /// measured (a half step past it): where the bar itself ends, when a
+    /// side of the profile stayed at board level past it.
+    pub bar_end: Option<f64>,
     /// The walk reached its limit with the board still there.
     pub unended: bool,
     /// The walk left the tile with the board still there.
@@ -116,6 +120,7 @@ pub fn follow(
         };
         if arm.points.len() > points {
             last_point = Some(t);
+            arm.bar_end = Some(t + 0.5 * step);
         }
         if on_board {
             arm.profiles += 1;

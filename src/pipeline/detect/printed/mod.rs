@@ -271,7 +271,6 @@ impl PrintedDetector {
         };
         let mut centre = c.centre;
         let mut width = width0;
-        let is_bar = design.kind == DesignKind::Cross;
         // Two passes: the first near the centre from the candidate's
         // guesses, the second along the whole arms from the first's lines.
         let mut arms: [Arm; 4] = Default::default();
@@ -345,7 +344,7 @@ impl PrintedDetector {
                     }
                     // The second pass follows the arms to their ends:
                     // opposite arms differ by perspective only.
-                    if pass == 1 && is_bar {
+                    if pass == 1 && design.kind == DesignKind::Cross {
                         even_out(&mut arms, l, p.max_arm_ratio, p.max_cut_arm_ratio);
                     }
                     let (a, b) = (arms[l].length, arms[l + 2].length);

@@ -85,16 +85,14 @@ pub fn follow(
     let need = params.side_share * contrast;
     let mut t = start;
     arm.length = start;
-    // Where the last centre-line point was measured. Ground as dark as
-    // the board beside an arm's end keeps one side at board level on and
-    // on, so a walk that never leaves the "board" (to its limit or the
-    // tile's edge) ends its bar there. A walk that did leave it keeps its
-    // own end: cutting those too (a light stripe at the end) let paving in
-    // shadow through as a cross.
-    let mut last_point: Option<f64> = None;
+    // Ground as dark as the board beside an arm's end keeps one side at
+    // board level on and on, so a walk that never leaves the "board" (to
+    // its limit or the tile's edge) ends at its bar's end (`arm.bar_end`).
+    // A walk that did leave it keeps its own end: cutting those too (a
+    // light stripe at the end) let paving in shadow through as a cross.
     let is_bar = matches!(feature, Feature::Bar { .. });
-    let bar_end = |last: Option<f64>, length: f64| match last {
-        Some(at) if is_bar => length.min(at + 0.5 * step),
+    let bar_end = |arm: &Arm, length: f64| match arm.bar_end {
+        Some(end) if is_bar => length.min(end),
         _ => length,
     };
     while t <= limit {
@@ -102,7 +100,7 @@ pub fn follow(
         if pr::line(img, base, n, half, &mut samples).is_none() {
             // The tile's edge: the arm cannot be followed to its end.
             arm.left_tile = true;
-            arm.length = bar_end(last_point, arm.length);
+            arm.length = bar_end(&arm, arm.length);
             return arm;
         }
         let across = Across {
@@ -119,7 +117,6 @@ pub fn follow(
             Feature::Step { sign } => across.step(sign, need, &mut arm),
         };
         if arm.points.len() > points {
-            last_point = Some(t);
             arm.bar_end = Some(t + 0.5 * step);
         }
         if on_board {
@@ -140,7 +137,7 @@ pub fn follow(
     }
     // On the board to the walk's limit; a bar seen last well before it
     // ended there (one side dark ground from then on).
-    arm.length = bar_end(last_point, limit);
+    arm.length = bar_end(&arm, limit);
     arm.unended = arm.length > limit - 2.0 * step - width;
     arm
 }

@@ -11,7 +11,6 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use gcp_synth::{FileKind, FlightSpec};
 use serde_json::Value;
 
 mod common;
@@ -28,31 +27,15 @@ fn main() {
         println!("load: run with `cargo bench --bench load`");
         return;
     }
-    let spec = FlightSpec {
-        frames: FRAMES,
-        width: 4000,
-        height: 3000,
-        markers: 8,
-        kind: FileKind::Jpeg,
-        seed: 21,
-        hard: false,
-    };
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("load-frames");
-    if !dir.join("truth.csv").exists() {
-        eprintln!("generating {FRAMES} frames into {}", dir.display());
-        common::generate(&dir, &spec);
-    }
-    let frames: Vec<PathBuf> = (0..FRAMES)
-        .map(|i| dir.join(format!("frame_{i:04}.jpg")))
-        .collect();
-    let megapixels = (spec.width * spec.height * FRAMES) as f64 / 1e6;
+    let flight = common::JpegFlight::get("load-frames", FRAMES);
+    let megapixels = flight.megapixels();
 
     let (cli_seconds, cli_rss_kib) = common::run_detect(
-        &dir,
-        &dir.with_extension("cli.csv"),
+        &flight.dir,
+        &flight.dir.with_extension("cli.csv"),
         &["--max-ram-gb", MAX_RAM_GB],
     );
-    let (server_seconds, peak_rss_kib, latencies) = run_server(&frames);
+    let (server_seconds, peak_rss_kib, latencies) = run_server(&flight.frames);
     let mut ms: Vec<f64> = latencies.iter().map(|d| d.as_secs_f64() * 1e3).collect();
     ms.sort_by(f64::total_cmp);
     let q = |p: f64| ms[((ms.len() - 1) as f64 * p).round() as usize];

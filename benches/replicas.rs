@@ -2,14 +2,13 @@
 //! two, each with one worker, on one PostgreSQL (initdb'd for the run) and
 //! one bucket (moto_server). Prints the throughput of each and their ratio.
 //!
-//! Run: `cargo bench --bench replicas` (frames are the load bench's,
+//! Run: `cargo bench --bench replicas` (frames like the load bench's,
 //! generated once into the target folder). Under `cargo test` it does
 //! nothing.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use gcp_synth::{FileKind, FlightSpec};
 use serde_json::json;
 
 #[allow(dead_code)]
@@ -33,24 +32,8 @@ fn main() {
         println!("replicas: run with `cargo bench --bench replicas`");
         return;
     }
-    let spec = FlightSpec {
-        frames: FRAMES,
-        width: 4000,
-        height: 3000,
-        markers: 8,
-        kind: FileKind::Jpeg,
-        seed: 21,
-        hard: false,
-    };
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("replica-frames");
-    if !dir.join("truth.csv").exists() {
-        eprintln!("generating {FRAMES} frames into {}", dir.display());
-        common::generate(&dir, &spec);
-    }
-    let frames: Vec<PathBuf> = (0..FRAMES)
-        .map(|i| dir.join(format!("frame_{i:04}.jpg")))
-        .collect();
-    let megapixels = (spec.width * spec.height * FRAMES) as f64 / 1e6;
+    let flight = common::JpegFlight::get("replica-frames", FRAMES);
+    let megapixels = flight.megapixels();
     let pg = postgres::Postgres::start();
     let moto = Moto::start(false);
     moto.ops(KEY, SECRET, json!([{"op": "bucket", "bucket": "bench"}]));
@@ -59,8 +42,8 @@ fn main() {
     println!("| marker types | 1 replica | 2 replicas | ratio |");
     println!("|---|---|---|---|");
     for mode in modes.split(';') {
-        let one = run(&pg, &moto, &frames, 1, mode);
-        let two = run(&pg, &moto, &frames, 2, mode);
+        let one = run(&pg, &moto, &flight.frames, 1, mode);
+        let two = run(&pg, &moto, &flight.frames, 2, mode);
         println!(
             "| {mode} | {:.1} MP/s | {:.1} MP/s | {:.2}x |",
             megapixels / one,
@@ -72,8 +55,8 @@ fn main() {
         "\n{FRAMES} frames of {}x{} JPEG in one multipart request to the first replica, \
          timed to the flight's end; each replica `--workers 1`, one PostgreSQL, one bucket \
          (moto), on this machine ({} cores).",
-        spec.width,
-        spec.height,
+        flight.spec.width,
+        flight.spec.height,
         std::thread::available_parallelism().map_or(0, |n| n.get())
     );
 }

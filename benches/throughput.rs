@@ -14,6 +14,7 @@ use std::process::Command;
 
 use gcp_synth::{FileKind, FlightSpec};
 
+#[allow(dead_code)] // the service benches' flight
 mod common;
 use common::{generate, run_detect, run_measured};
 

@@ -1,10 +1,47 @@
 //! Helpers shared by the benchmarks.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use gcp_synth::FlightSpec;
+use gcp_synth::{FileKind, FlightSpec};
+
+/// A flight of the service benches: 4000x3000 JPEG frames of eight coded
+/// markers each (seed 21), rendered once into the target folder and reused.
+pub struct JpegFlight {
+    pub spec: FlightSpec,
+    pub dir: PathBuf,
+    pub frames: Vec<PathBuf>,
+}
+
+impl JpegFlight {
+    /// `count` frames in `CARGO_TARGET_TMPDIR/folder`, rendered if missing.
+    pub fn get(folder: &str, count: usize) -> JpegFlight {
+        let spec = FlightSpec {
+            frames: count,
+            width: 4000,
+            height: 3000,
+            markers: 8,
+            kind: FileKind::Jpeg,
+            seed: 21,
+            hard: false,
+        };
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(folder);
+        if !dir.join("truth.csv").exists() {
+            eprintln!("generating {count} frames into {}", dir.display());
+            generate(&dir, &spec);
+        }
+        let frames = (0..count)
+            .map(|i| dir.join(format!("frame_{i:04}.jpg")))
+            .collect();
+        JpegFlight { spec, dir, frames }
+    }
+
+    /// The flight's size in megapixels.
+    pub fn megapixels(&self) -> f64 {
+        (self.spec.width * self.spec.height * self.frames.len()) as f64 / 1e6
+    }
+}
 
 /// Renders frames in a separate process: Linux carries a process's peak RSS
 /// across fork+exec into its children's rusage, so rendering 8000x6000

@@ -112,8 +112,9 @@ fn a_claim_is_a_lease_that_expires_into_the_queue_and_fails_on_the_last_attempt(
             JobState::Running,
             "{name}"
         );
-        // The last attempt's lease expires too: the job fails, not queued.
-        assert!(claim(store, Duration::from_secs(2)).is_none(), "{name}");
+        // The last attempt's lease expires too: the job fails, not queued
+        // (a wait of two leases sees it expire).
+        assert!(claim(store, 2 * lease.lease).is_none(), "{name}");
         let job = store.job(first.job.id).unwrap().unwrap();
         assert_eq!(job.state, JobState::Failed, "{name}");
         let error = job.error.expect("a reason");
@@ -131,7 +132,7 @@ fn a_claim_is_a_lease_that_expires_into_the_queue_and_fails_on_the_last_attempt(
             .unwrap();
         let lost = claim(store, Duration::ZERO).expect("a queued job");
         store.cancel_job(lost.job.id).unwrap();
-        assert!(claim(store, Duration::from_secs(2)).is_none(), "{name}");
+        assert!(claim(store, 2 * lease.lease).is_none(), "{name}");
         let job = store.job(lost.job.id).unwrap().unwrap();
         assert_eq!(
             (job.state, job.cancel_requested),

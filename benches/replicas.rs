@@ -90,8 +90,10 @@ fn run(pg: &postgres::Postgres, moto: &Moto, frames: &[PathBuf], n: usize, mode:
         &format!("/v1/flights?crs=EPSG:32633&marker_types={mode}"),
         &paths,
     );
+    let uploaded = started.elapsed().as_secs_f64();
     let done = replicas[0].wait_flight(&id);
     let seconds = started.elapsed().as_secs_f64();
+    eprintln!("{mode}, {n} replica(s): upload answered after {uploaded:.1} s, flight done after {seconds:.1} s");
     assert_eq!(done["jobs"]["succeeded"], FRAMES, "{done}");
     seconds
 }

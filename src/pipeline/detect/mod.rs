@@ -25,7 +25,7 @@ use std::str::FromStr;
 
 use opencv::core::Mat;
 
-pub use apriltag::{tag_cells, AprilTagDetector, AprilTagFamily, TagCells};
+pub use apriltag::{tag_cells, AprilTagDetector, AprilTagFamily, TagCells, TagCellsError};
 pub use circle::CircleDetector;
 pub use design::TargetDesign;
 pub use fiducial::{ArucoDictionary, FiducialDetector};

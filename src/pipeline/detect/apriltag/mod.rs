@@ -183,25 +183,38 @@ impl Drop for FamilyHandle {
     }
 }
 
+/// Why a tag's cells cannot be drawn.
+#[derive(Debug, thiserror::Error)]
+pub enum TagCellsError {
+    #[error("AprilTag {family} has ids 0..{last}, not {id}")]
+    NoSuchId {
+        family: &'static str,
+        last: u32,
+        id: u32,
+    },
+    #[error("libapriltag: out of memory drawing a tag")]
+    OutOfMemory,
+}
+
 /// The cells of tag `id` of `family` as libapriltag draws it
 /// (`apriltag_to_image`), true for white: `total_width` cells a side,
 /// including the white ring outside a classic tag's black border. Also
 /// returns `width_at_border` (the side of the square the detector reports)
 /// and whether the family is classic (black border, white outside).
-pub fn tag_cells(family: AprilTagFamily, id: u32) -> Result<TagCells, String> {
+pub fn tag_cells(family: AprilTagFamily, id: u32) -> Result<TagCells, TagCellsError> {
     let handle = FamilyHandle::new(family);
     let fam = handle.get();
     if id >= fam.ncodes {
-        return Err(format!(
-            "AprilTag {} has ids 0..{}, not {id}",
-            family.name(),
-            fam.ncodes - 1
-        ));
+        return Err(TagCellsError::NoSuchId {
+            family: family.name(),
+            last: fam.ncodes - 1,
+            id,
+        });
     }
     // SAFETY: a valid family and an id below ncodes; the image is ours to
     // read and destroy.
     let img = unsafe { sys::apriltag_to_image(handle.ptr.as_ptr(), id as i32) };
-    let img = NonNull::new(img).ok_or("libapriltag: out of memory")?;
+    let img = NonNull::new(img).ok_or(TagCellsError::OutOfMemory)?;
     let cells = {
         // SAFETY: width x height bytes at row stride `stride` from buf.
         let im = unsafe { img.as_ref() };

@@ -123,8 +123,10 @@ fn family_names_are_taken_as_users_write_them() {
 
 #[test]
 fn an_id_past_the_family_is_refused_by_name() {
-    let e = tag_cells("16h5".parse().unwrap(), 30).unwrap_err();
-    assert!(e.contains("0..29"), "{e}");
+    let e = tag_cells("16h5".parse().unwrap(), 30)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("16h5") && e.contains("0..29"), "{e}");
 }
 
 /// A hard shadow edge across a tag (a pole's): the shadowed part of the

@@ -6,6 +6,7 @@
 //! Pixel convention: pixel (i, j) covers [i-0.5, i+0.5] x [j-0.5, j+0.5], so
 //! truth is in OpenCV coordinates (centre of the top-left pixel is 0,0).
 
+mod canvas;
 mod exif;
 mod geometry;
 mod printed;
@@ -17,11 +18,12 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+pub use canvas::Truth;
 pub use exif::{write_drone_meta, DroneMeta};
 pub use geometry::{dist, Homography, Pt};
 pub use printed::{Lookalike, LookalikeKind, Marking, PrintedDesign, PrintedSpec};
 pub use render::{
-    render, render_window, render_with_lookalikes, Clutter, GreyImage, MarkerSpec, Scene, Truth,
+    render, render_window, render_with_lookalikes, Clutter, GreyImage, MarkerSpec, Scene,
 };
 pub use tags::{marker_cells, TargetKind};
 pub use write::{write_image, GeoSpec, SampleFormat};

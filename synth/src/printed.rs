@@ -3,9 +3,9 @@
 
 use std::f64::consts::PI;
 
+use super::canvas::{bbox_of, paint, square_corners, Canvas, Truth};
+use super::canvas::{PAPER_BLACK, PAPER_WHITE};
 use super::geometry::{Homography, Pt};
-use super::render::{bbox_of, paint, square_corners, Canvas, Truth};
-use super::render::{PAPER_BLACK, PAPER_WHITE};
 use super::tags::TargetKind;
 use super::Rng;
 
@@ -161,7 +161,7 @@ pub(super) fn place(img: &mut Canvas, spec: &PrintedSpec, index: u32, rng: &mut 
 /// normal) darkening one side within `radius`, as a pole or a tree casts.
 fn local_shadow(img: &mut Canvas, center: Pt, angle: f64, offset: f64, radius: f64) {
     let (s, c) = angle.sin_cos();
-    super::render::paint_over(img, center, radius, |x, y| {
+    super::canvas::paint_over(img, center, radius, |x, y| {
         let d = -s * (x - center.0) + c * (y - center.1) - offset;
         let cover = (0.5 - d).clamp(0.0, 1.0) as f32;
         1.0 - 0.45 * cover

@@ -74,73 +74,80 @@ fn a_claim_is_a_lease_that_expires_into_the_queue_and_fails_on_the_last_attempt(
         lease: Duration::from_millis(600),
         max_attempts: 2,
     };
-    for (name, store) in &stores(lease).list {
-        let store = &**store;
-        store
-            .create_flight(&JobParams::default(), &frames(1), None, None)
-            .unwrap();
-        let first = claim(store, Duration::ZERO).expect("a queued job");
-        assert_eq!(first.job.attempts, 1, "{name}");
-        assert!(
-            claim(store, Duration::ZERO).is_none(),
-            "{name}: claimed twice"
-        );
-        // Renewed, it stays this worker's past the lease time.
-        let until = Instant::now() + Duration::from_millis(1200);
-        while Instant::now() < until {
-            let held = store.heartbeat(&first.lease, &Progress::default()).unwrap();
-            assert_eq!(held, LeaseState::Held { cancel: false }, "{name}");
-            assert!(claim(store, Duration::from_millis(150)).is_none(), "{name}");
+    // The two stores wait out their leases side by side.
+    let stores = stores(lease);
+    std::thread::scope(|s| {
+        for (name, store) in &stores.list {
+            s.spawn(move || leases_expire(name, &**store, lease));
         }
-        // Not renewed, it goes back to the queue with its attempt counted.
-        let second = claim(store, Duration::from_secs(5)).expect("requeued after the lease");
-        assert_eq!(
-            (second.job.id, second.job.attempts),
-            (first.job.id, 2),
-            "{name}"
-        );
-        assert_ne!(second.lease, first.lease, "{name}");
-        let stale = store.heartbeat(&first.lease, &Progress::default()).unwrap();
-        assert_eq!(stale, LeaseState::Lost, "{name}");
-        assert_eq!(
-            store.finish(&first.lease, &succeeded()).unwrap(),
-            Finished::Lost,
-            "{name}: the first worker must not record an end"
-        );
-        assert_eq!(
-            store.job(first.job.id).unwrap().unwrap().state,
-            JobState::Running,
-            "{name}"
-        );
-        // The last attempt's lease expires too: the job fails, not queued
-        // (a wait of two leases sees it expire).
-        assert!(claim(store, 2 * lease.lease).is_none(), "{name}");
-        let job = store.job(first.job.id).unwrap().unwrap();
-        assert_eq!(job.state, JobState::Failed, "{name}");
-        let error = job.error.expect("a reason");
-        assert_eq!(error.code, ErrorCode::WorkerCrashed, "{name}");
-        assert!(
-            error.message.contains("2 attempts"),
-            "{name}: {}",
-            error.message
-        );
-        assert_eq!(store.stats().unwrap().running, 0, "{name}");
+    });
+}
 
-        // Canceled while its worker is lost: it ends canceled, not queued.
-        store
-            .create_flight(&JobParams::default(), &frames(1), None, None)
-            .unwrap();
-        let lost = claim(store, Duration::ZERO).expect("a queued job");
-        store.cancel_job(lost.job.id).unwrap();
-        assert!(claim(store, 2 * lease.lease).is_none(), "{name}");
-        let job = store.job(lost.job.id).unwrap().unwrap();
-        assert_eq!(
-            (job.state, job.cancel_requested),
-            (JobState::Canceled, false),
-            "{name}"
-        );
-        assert!(job.finished_at.is_some(), "{name}");
+fn leases_expire(name: &str, store: &dyn JobStore, lease: LeaseConfig) {
+    store
+        .create_flight(&JobParams::default(), &frames(1), None, None)
+        .unwrap();
+    let first = claim(store, Duration::ZERO).expect("a queued job");
+    assert_eq!(first.job.attempts, 1, "{name}");
+    assert!(
+        claim(store, Duration::ZERO).is_none(),
+        "{name}: claimed twice"
+    );
+    // Renewed, it stays this worker's past the lease time.
+    let until = Instant::now() + Duration::from_millis(1200);
+    while Instant::now() < until {
+        let held = store.heartbeat(&first.lease, &Progress::default()).unwrap();
+        assert_eq!(held, LeaseState::Held { cancel: false }, "{name}");
+        assert!(claim(store, Duration::from_millis(150)).is_none(), "{name}");
     }
+    // Not renewed, it goes back to the queue with its attempt counted.
+    let second = claim(store, Duration::from_secs(5)).expect("requeued after the lease");
+    assert_eq!(
+        (second.job.id, second.job.attempts),
+        (first.job.id, 2),
+        "{name}"
+    );
+    assert_ne!(second.lease, first.lease, "{name}");
+    let stale = store.heartbeat(&first.lease, &Progress::default()).unwrap();
+    assert_eq!(stale, LeaseState::Lost, "{name}");
+    assert_eq!(
+        store.finish(&first.lease, &succeeded()).unwrap(),
+        Finished::Lost,
+        "{name}: the first worker must not record an end"
+    );
+    assert_eq!(
+        store.job(first.job.id).unwrap().unwrap().state,
+        JobState::Running,
+        "{name}"
+    );
+    // The last attempt's lease expires too: the job fails, not queued
+    // (a wait of two leases sees it expire).
+    assert!(claim(store, 2 * lease.lease).is_none(), "{name}");
+    let job = store.job(first.job.id).unwrap().unwrap();
+    assert_eq!(job.state, JobState::Failed, "{name}");
+    let error = job.error.expect("a reason");
+    assert_eq!(error.code, ErrorCode::WorkerCrashed, "{name}");
+    assert!(
+        error.message.contains("2 attempts"),
+        "{name}: {}",
+        error.message
+    );
+    assert_eq!(store.stats().unwrap().running, 0, "{name}");
+
+    // Canceled while its worker is lost: it ends canceled, not queued.
+    store
+        .create_flight(&JobParams::default(), &frames(1), None, None)
+        .unwrap();
+    let lost = claim(store, Duration::ZERO).expect("a queued job");
+    store.cancel_job(lost.job.id).unwrap();
+    assert!(claim(store, 2 * lease.lease).is_none(), "{name}");
+    let job = store.job(lost.job.id).unwrap().unwrap();
+    assert_eq!(
+        (job.state, job.cancel_requested),
+        (JobState::Canceled, false),
+        "{name}"
+    );
+    assert!(job.finished_at.is_some(), "{name}");
 }
 
 #[test]

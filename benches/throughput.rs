@@ -29,7 +29,8 @@ fn main() {
         return;
     }
     let root = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("bench-frames");
-    // BENCH_ONLY=pictures runs that table alone.
+    // BENCH_ONLY=pictures or BENCH_ONLY=hard runs that table alone
+    // (PEER=off leaves the reference detector out of the hard cases).
     let only = std::env::var("BENCH_ONLY").ok();
     let sets = [
         Set {
@@ -57,9 +58,10 @@ fn main() {
             },
         },
     ];
-    if only.as_deref() == Some("pictures") {
-        pictures(&root, &sets[0]);
-        return;
+    match only.as_deref() {
+        Some("pictures") => return pictures(&root, &sets[0]),
+        Some("hard") => return hard_cases(&root),
+        _ => {}
     }
     println!(
         "| frames | threads | MP/s | peak RSS MiB | recall | centre error median px | p95 px |"
@@ -233,7 +235,11 @@ fn hard_cases(root: &Path) {
             ("AprilTag 3, decimate 2", Some("2")),
             ("AprilTag 3, decimate 1", Some("1")),
         ];
+        let with_peer = std::env::var("PEER").map_or(true, |v| v != "off");
         for (i, (who, decimate)) in runs.into_iter().enumerate() {
+            if decimate.is_some() && !with_peer {
+                continue;
+            }
             let out = dir.with_extension(format!("hard{i}.csv"));
             let (seconds, rss_kib) = match decimate {
                 None => run_detect(&dir, &out, &["--threads", "2"]),
@@ -266,7 +272,7 @@ fn hard_cases(root: &Path) {
         "AprilTag 3, decimate 2",
         "AprilTag 3, decimate 1",
     ] {
-        let t = totals[who];
+        let Some(&t) = totals.get(who) else { continue };
         println!(
             "{who}: recall {:.3} over all hard frames, {:.1} MP/s; gcp-tagger's speed {:.2}x",
             t.0 as f64 / t.1 as f64,

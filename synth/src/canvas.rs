@@ -10,7 +10,7 @@ use super::Rng;
 
 /// Subsamples per pixel side when painting shapes: 8x8 = 64 samples keeps
 /// the area-coverage error of an edge under 1/64 of a pixel.
-pub(super) const SUPERSAMPLE: usize = 8;
+const SUPERSAMPLE: usize = 8;
 /// Printed target paper: white and black reflectance.
 pub(super) const PAPER_WHITE: f32 = 0.92;
 pub(super) const PAPER_BLACK: f32 = 0.07;

@@ -41,7 +41,8 @@ pub struct Arm {
     pub length: f64,
     /// Distance from the centre where the bar's centre line was last
     /// measured (a half step past it): where the bar itself ends, when a
-    /// side of the profile stayed at board level past it.
+    /// side of the profile stayed at board level past it. None for a
+    /// checker's boundary.
     pub bar_end: Option<f64>,
     /// The walk reached its limit with the board still there.
     pub unended: bool,
@@ -91,10 +92,7 @@ pub fn follow(
     // A walk that did leave it keeps its own end: cutting those too (a
     // light stripe at the end) let paving in shadow through as a cross.
     let is_bar = matches!(feature, Feature::Bar { .. });
-    let bar_end = |arm: &Arm, length: f64| match arm.bar_end {
-        Some(end) if is_bar => length.min(end),
-        _ => length,
-    };
+    let bar_end = |arm: &Arm, length: f64| arm.bar_end.map_or(length, |end| length.min(end));
     while t <= limit {
         let base = add(centre, dir, t);
         if pr::line(img, base, n, half, &mut samples).is_none() {
@@ -116,7 +114,7 @@ pub fn follow(
             Feature::Bar { sign } => across.bar(sign, width, need, params, &mut arm),
             Feature::Step { sign } => across.step(sign, need, &mut arm),
         };
-        if arm.points.len() > points {
+        if is_bar && arm.points.len() > points {
             arm.bar_end = Some(t + 0.5 * step);
         }
         if on_board {

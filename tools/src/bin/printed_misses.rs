@@ -24,7 +24,7 @@ use std::io::BufRead;
 use std::sync::Mutex;
 
 use gcp_synth::GreyImage;
-use gcp_synth::{clutter_scene, printed_scene, render, write_image, SampleFormat};
+use gcp_synth::{clutter_scene, printed_scene, render_with_lookalikes, write_image, SampleFormat};
 use gcp_tagger::pipeline::batch::{run_batch, BatchOptions, FrameInput};
 use gcp_tagger::pipeline::detect::{DetectorConfig, MarkerType};
 use gcp_tagger::pipeline::frame::FrameOptions;
@@ -149,7 +149,7 @@ fn main() {
         } else {
             printed_scene(2400, 1800, targets, kind(mode), sizes, seed)
         };
-        let (img, truth) = render(&scene).unwrap();
+        let (img, truth, lookalikes) = render_with_lookalikes(&scene).unwrap();
         if let Ok(dir) = std::env::var("FRAMES") {
             // FRAMES=dir: keep each frame, to run the CLI on.
             let path = std::path::Path::new(&dir).join(format!("frame{seed}.png"));
@@ -199,8 +199,17 @@ fn main() {
         if clutter {
             for (i, d) in result.targets.iter().enumerate() {
                 let d = &d.detection;
+                // The look-alikes painted over the detection (the nearest
+                // first), or none: ground, clutter squares or stripes.
+                let mut under: Vec<_> = lookalikes.iter().filter(|l| l.covers(d.center)).collect();
+                under.sort_by(|a, b| {
+                    let da = (a.center.0 - d.center.0).hypot(a.center.1 - d.center.1);
+                    let db = (b.center.0 - d.center.0).hypot(b.center.1 - d.center.1);
+                    da.total_cmp(&db)
+                });
+                let under = under.first().map_or("none".to_string(), |l| format!("{:?}", l.kind));
                 eprintln!(
-                    "  FP {} at ({:.1},{:.1}) size {:.1} confidence {:.2} rms {:?}",
+                    "  FP {} at ({:.1},{:.1}) size {:.1} confidence {:.2} rms {:?} on {under}",
                     d.marker_type, d.center.0, d.center.1, d.size_px, d.confidence, d.fit_rms_px
                 );
                 crop(

@@ -207,7 +207,9 @@ fn main() {
                     let db = (b.center.0 - d.center.0).hypot(b.center.1 - d.center.1);
                     da.total_cmp(&db)
                 });
-                let under = under.first().map_or("none".to_string(), |l| format!("{:?}", l.kind));
+                let under = under
+                    .first()
+                    .map_or("none".to_string(), |l| format!("{:?}", l.kind));
                 eprintln!(
                     "  FP {} at ({:.1},{:.1}) size {:.1} confidence {:.2} rms {:?} on {under}",
                     d.marker_type, d.center.0, d.center.1, d.size_px, d.confidence, d.fit_rms_px

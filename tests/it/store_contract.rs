@@ -141,7 +141,12 @@ fn leases_expire(name: &str, store: &dyn JobStore, lease: LeaseConfig) {
     let lost = claim(store, Duration::ZERO).expect("a queued job");
     store.cancel_job(lost.job.id).unwrap();
     assert!(claim(store, 2 * lease.lease).is_none(), "{name}");
-    let job = store.job(lost.job.id).unwrap().unwrap();
+    assert_ended_canceled(store, lost.job.id, name);
+}
+
+/// The job has ended canceled, its cancel request settled.
+fn assert_ended_canceled(store: &dyn JobStore, id: JobId, name: &str) {
+    let job = store.job(id).unwrap().unwrap();
     assert_eq!(
         (job.state, job.cancel_requested),
         (JobState::Canceled, false),
@@ -188,13 +193,7 @@ fn progress_and_cancel_travel_with_the_heartbeat() {
         assert_eq!(told, LeaseState::Held { cancel: true }, "{name}");
         let end = store.finish(&running.lease, &Outcome::Canceled).unwrap();
         assert_eq!(end, Finished::Recorded, "{name}");
-        let job = store.job(running.job.id).unwrap().unwrap();
-        assert_eq!(
-            (job.state, job.cancel_requested),
-            (JobState::Canceled, false),
-            "{name}"
-        );
-        assert!(job.finished_at.is_some(), "{name}");
+        assert_ended_canceled(store, running.job.id, name);
     }
 }
 

@@ -414,19 +414,14 @@ struct Raw {
 }
 
 impl Raw {
-    fn centre(&self) -> Pt {
-        let c = &self.corners;
-        (
-            (c[0].0 + c[1].0 + c[2].0 + c[3].0) / 4.0,
-            (c[0].1 + c[1].1 + c[2].1 + c[3].1) / 4.0,
-        )
-    }
-
     /// Whether the two reads are one tag: their centres lie within a
     /// quarter of the smaller one's side (two tags never overlap so).
     fn same_place(&self, other: &Raw) -> bool {
-        let side = |r: &Raw| geometry::dist(r.corners[0], r.corners[2]) / std::f64::consts::SQRT_2;
-        geometry::dist(self.centre(), other.centre()) < 0.25 * side(self).min(side(other))
+        let side = geometry::mean_side(&self.corners).min(geometry::mean_side(&other.corners));
+        geometry::dist(
+            geometry::mean(&self.corners),
+            geometry::mean(&other.corners),
+        ) < 0.25 * side
     }
 }
 
@@ -463,8 +458,8 @@ impl AprilTagDetector {
     }
 
     fn search_on(&mut self, view: &GreyView, scale: Scale) -> opencv::Result<Vec<Raw>> {
-        // The mapped copy, reused from tile to tile; the linear scale is the
-        // tile's own pixels, made contiguous when they are not.
+        // The tile copied on the scale (libapriltag takes one contiguous
+        // buffer), reused from tile to tile.
         let scaled = &mut self.scaled;
         scaled.resize(view.width * view.height, 0);
         for (y, row) in scaled.chunks_exact_mut(view.width).enumerate() {

@@ -25,10 +25,15 @@ pub(crate) fn big_frame(dir: &Path, name: &str) -> PathBuf {
     path
 }
 
-/// A JPEG of noise: with `marker_types=apriltag,crosshair`, candidates for
-/// one worker of the test build for a while (6000x4000: several seconds, a
-/// job that outlasts a few requests; tests that need it longer cancel it
-/// rather than wait for it).
+/// A JPEG of noise: with [`NOISE_MODES`], candidates for one worker of the
+/// test build for a while (6000x4000: several seconds, a job that outlasts
+/// a few requests; tests that need it longer cancel it rather than wait for
+/// it).
+/// The noise frame's query: from 30 px AprilTags are searched once (under
+/// it a second time on the linear scale, which on pure noise takes five
+/// times the first search and would make these tests wait on it).
+const NOISE_MODES: &str = "&marker_types=apriltag,crosshair&min_target_px=30";
+
 fn noise_frame(dir: &Path, (w, h): (usize, usize)) -> PathBuf {
     let mut x = 0x9E37_79B9_7F4A_7C15u64;
     let noise = GreyImage {
@@ -339,8 +344,7 @@ fn during_the_shutdown_grace_readiness_is_503_and_new_work_is_refused() {
     let big = noise_frame(dir.path(), (6000, 4000));
     let data = dir.path().join("d");
     let mut server = Server::start(&data, &["--workers", "1", "--shutdown-grace-secs", "60"]);
-    let (_, big_job) =
-        flight_with_running_first(&server, &big, &[], "&marker_types=apriltag,crosshair");
+    let (_, big_job) = flight_with_running_first(&server, &big, &[], NOISE_MODES);
     assert_eq!(server.get("/readyz").status(), 200);
 
     // SIGTERM while the job runs: the listener stays for the grace.
@@ -376,8 +380,7 @@ fn a_full_disk_pauses_jobs_and_they_finish_once_space_returns() {
     let data = dir.path().join("d");
     let server =
         Server::start_on_small_disk(&data, 256, &["--workers", "1", "--min-free-disk-mb", "64"]);
-    let (id, _) =
-        flight_with_running_first(&server, &noise, frames, "&marker_types=apriltag,crosshair");
+    let (id, _) = flight_with_running_first(&server, &noise, frames, NOISE_MODES);
 
     // Fill the server's disk to the last byte while the job runs.
     let filler = server.own_path(&data.join("filler"));
@@ -431,10 +434,7 @@ fn a_long_poll_that_runs_out_says_to_ask_again() {
     let data = dir.path().join("d");
     let server = Server::start(&data, &["--workers", "1"]);
     let upload = [noise.as_path(), frames[0].as_path()];
-    let r = server.post_files(
-        &format!("/v1/flights?crs={CRS}&marker_types=apriltag,crosshair"),
-        &upload,
-    );
+    let r = server.post_files(&format!("/v1/flights?crs={CRS}{NOISE_MODES}"), &upload);
     assert_eq!(r.status(), 201);
     let flight: Value = r.json().unwrap();
     let id = flight["flight"]["id"].as_str().unwrap().to_string();

@@ -25,15 +25,15 @@ pub(crate) fn big_frame(dir: &Path, name: &str) -> PathBuf {
     path
 }
 
-/// A JPEG of noise: with [`NOISE_MODES`], candidates for one worker of the
-/// test build for a while (6000x4000: several seconds, a job that outlasts
-/// a few requests; tests that need it longer cancel it rather than wait for
-/// it).
-/// The noise frame's query: from 30 px AprilTags are searched once (under
-/// it a second time on the linear scale, which on pure noise takes five
-/// times the first search and would make these tests wait on it).
+/// The noise frame's query for tests that wait for its job: from 30 px
+/// AprilTags are searched once (under it a second time on the linear scale,
+/// which on pure noise takes five times the first search).
 const NOISE_MODES: &str = "&marker_types=apriltag,crosshair&min_target_px=30";
 
+/// A JPEG of noise: with [`NOISE_MODES`], candidates for one worker of the
+/// test build for a while (6000x4000: a second or more, a job that outlasts
+/// a few requests; tests that need it longer cancel it rather than wait for
+/// it).
 fn noise_frame(dir: &Path, (w, h): (usize, usize)) -> PathBuf {
     let mut x = 0x9E37_79B9_7F4A_7C15u64;
     let noise = GreyImage {
@@ -434,7 +434,12 @@ fn a_long_poll_that_runs_out_says_to_ask_again() {
     let data = dir.path().join("d");
     let server = Server::start(&data, &["--workers", "1"]);
     let upload = [noise.as_path(), frames[0].as_path()];
-    let r = server.post_files(&format!("/v1/flights?crs={CRS}{NOISE_MODES}"), &upload);
+    // The default search: the longer the noise job, the surer the second
+    // frame is still queued (the noise job is canceled, not waited for).
+    let r = server.post_files(
+        &format!("/v1/flights?crs={CRS}&marker_types=apriltag,crosshair"),
+        &upload,
+    );
     assert_eq!(r.status(), 201);
     let flight: Value = r.json().unwrap();
     let id = flight["flight"]["id"].as_str().unwrap().to_string();

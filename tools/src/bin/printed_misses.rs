@@ -23,8 +23,8 @@ use std::collections::BTreeMap;
 use std::io::BufRead;
 use std::sync::Mutex;
 
-use gcp_synth::GreyImage;
 use gcp_synth::{clutter_scene, printed_scene, render_with_lookalikes, write_image, SampleFormat};
+use gcp_synth::{dist, GreyImage};
 use gcp_tagger::pipeline::batch::{run_batch, BatchOptions, FrameInput};
 use gcp_tagger::pipeline::detect::{DetectorConfig, MarkerType};
 use gcp_tagger::pipeline::frame::FrameOptions;
@@ -199,16 +199,12 @@ fn main() {
         if clutter {
             for (i, d) in result.targets.iter().enumerate() {
                 let d = &d.detection;
-                // The look-alikes painted over the detection (the nearest
-                // first), or none: ground, clutter squares or stripes.
-                let mut under: Vec<_> = lookalikes.iter().filter(|l| l.covers(d.center)).collect();
-                under.sort_by(|a, b| {
-                    let da = (a.center.0 - d.center.0).hypot(a.center.1 - d.center.1);
-                    let db = (b.center.0 - d.center.0).hypot(b.center.1 - d.center.1);
-                    da.total_cmp(&db)
-                });
-                let under = under
-                    .first()
+                // The nearest look-alike painted over the detection, or
+                // none: ground, clutter squares or stripes.
+                let under = lookalikes
+                    .iter()
+                    .filter(|l| l.covers(d.center))
+                    .min_by(|a, b| dist(a.center, d.center).total_cmp(&dist(b.center, d.center)))
                     .map_or("none".to_string(), |l| format!("{:?}", l.kind));
                 eprintln!(
                     "  FP {} at ({:.1},{:.1}) size {:.1} confidence {:.2} rms {:?} on {under}",

@@ -267,7 +267,8 @@ pub struct TagCells {
 /// both scales and the two lists merged (see [`AprilTagDetector::search`])
 /// when the smallest target asks for a full-resolution search: on the
 /// bench's hard set (seeds 13 and 14) recall 0.933 -> 0.982, no false or
-/// wrong read, at 1.5x the time per frame.
+/// wrong read, at 1.5-1.7x the time per frame on the bench and the real
+/// photos, about 6x on pure noise.
 const KNEE: f64 = 64.0;
 
 /// libapriltag's `min_white_black_diff` on the mapped scale: a pixel whose

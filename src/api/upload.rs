@@ -487,10 +487,13 @@ pub fn commit(
         });
     }
     sync_dir(&data.root().join("frames"));
-    for job in jobs.iter().filter(|j| j.rejected.is_none()) {
-        data.publish(&data.frame_path(job.id, &job.ext))
-            .map_err(|e| ApiError::internal("cannot write a frame to the shared files", e))?;
-    }
+    let frames: Vec<PathBuf> = jobs
+        .iter()
+        .filter(|j| j.rejected.is_none())
+        .map(|j| data.frame_path(j.id, &j.ext))
+        .collect();
+    data.publish_all(&frames.iter().map(PathBuf::as_path).collect::<Vec<_>>())
+        .map_err(|e| ApiError::internal("cannot write a frame to the shared files", e))?;
     let done = record(store, &jobs, target, idem.as_ref(), max_frames)?;
     // Committed: the frames belong to their jobs now.
     upload.parts.clear();

@@ -19,8 +19,17 @@ use object_store::aws::AmazonS3;
 use object_store::path::Path as Key;
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
 
+use tokio::sync::Semaphore;
+
 use super::s3::{S3Error, S3Url, S3};
 use crate::background::Background;
+
+/// Objects written to the bucket at once by one [`SharedFiles::publish`].
+const PUTS_AT_ONCE: usize = 8;
+
+/// Most MiB of files one [`SharedFiles::publish`] holds in memory at once
+/// (a larger file alone takes the whole budget).
+pub const PUT_MIB_IN_FLIGHT: u64 = 256;
 
 pub struct SharedFiles {
     client: Arc<AmazonS3>,
@@ -91,30 +100,52 @@ impl SharedFiles {
         Key::parse(format!("{}{rel}", self.prefix)).map_err(io_error)
     }
 
-    /// Writes the local file (or every file of the folder) at `root/rel`
-    /// to the bucket.
-    pub fn publish(&self, root: &Path, rel: &Path) -> io::Result<()> {
-        let local = root.join(rel);
-        let files: Vec<PathBuf> = if local.is_dir() {
-            std::fs::read_dir(&local)?
-                .map(|e| e.map(|e| rel.join(e.file_name())))
-                .collect::<io::Result<_>>()?
-        } else {
-            vec![rel.to_path_buf()]
-        };
-        for rel in files {
-            let bytes = std::fs::read(root.join(&rel))?;
-            let key = self.key(&rel)?;
-            let client = self.client.clone();
-            self.run(async move {
-                client
-                    .put(&key, PutPayload::from(bytes))
-                    .await
-                    .map(|_| ())
-                    .map_err(io_error)
-            })?;
+    /// Writes the local files (or every file of the folders) at `root/rel`
+    /// for each of `rels` to the bucket, several at once: a flight's frames
+    /// wait on the object store's latency once, not once per frame. At
+    /// most [`PUT_MIB_IN_FLIGHT`] MiB of them are held in memory together.
+    pub fn publish(&self, root: &Path, rels: &[&Path]) -> io::Result<()> {
+        let mut files = Vec::new();
+        for rel in rels {
+            let local = root.join(rel);
+            if local.is_dir() {
+                for e in std::fs::read_dir(&local)? {
+                    files.push(rel.join(e?.file_name()));
+                }
+            } else {
+                files.push(rel.to_path_buf());
+            }
         }
-        Ok(())
+        let puts = files
+            .into_iter()
+            .map(|rel| Ok((root.join(&rel), self.key(&rel)?)))
+            .collect::<io::Result<Vec<(PathBuf, Key)>>>()?;
+        let client = self.client.clone();
+        self.run(async move {
+            let budget = Arc::new(Semaphore::new(PUT_MIB_IN_FLIGHT as usize));
+            futures_util::stream::iter(puts)
+                .map(|(local, key)| {
+                    let (client, budget) = (client.clone(), budget.clone());
+                    async move {
+                        let mib = tokio::fs::metadata(&local).await?.len() >> 20;
+                        let _held = budget
+                            .acquire_many(mib.clamp(1, PUT_MIB_IN_FLIGHT) as u32)
+                            .await
+                            .map_err(io_error)?;
+                        let bytes = tokio::fs::read(&local).await?;
+                        client
+                            .put(&key, PutPayload::from(bytes))
+                            .await
+                            .map(|_| ())
+                            .map_err(io_error)
+                    }
+                })
+                .buffer_unordered(PUTS_AT_ONCE)
+                .collect::<Vec<io::Result<()>>>()
+                .await
+                .into_iter()
+                .collect()
+        })
     }
 
     /// Brings `root/rel` in from the bucket: a file that never changes only

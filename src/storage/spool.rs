@@ -107,9 +107,15 @@ impl DataDir {
 
     /// Writes the file (or folder) at `path` to the shared bucket, if any.
     pub fn publish(&self, path: &Path) -> io::Result<()> {
-        match (&self.shared, path.strip_prefix(&self.root)) {
-            (Some(shared), Ok(rel)) => shared.publish(&self.root, rel),
-            _ => Ok(()),
+        self.publish_all(&[path])
+    }
+
+    /// Writes the files (or folders) at `paths`, all in this folder, to the
+    /// shared bucket, if any, several at once.
+    pub fn publish_all(&self, paths: &[&Path]) -> io::Result<()> {
+        match &self.shared {
+            Some(shared) => shared.publish(&self.root, &self.relative(paths)),
+            None => Ok(()),
         }
     }
 

@@ -306,8 +306,7 @@ pub(super) fn refine_corners(
     cells: f64,
     max_shift_px: Option<f64>,
 ) -> ([Pt; 4], f64, Refinement) {
-    let cell = geometry::mean_side(raw) / cells;
-    let limit = max_shift_px.unwrap_or((cell * MAX_SHIFT_CELLS).max(MIN_SHIFT_LIMIT_PX));
+    let limit = shift_limit(raw, cells, max_shift_px);
     let Some(refined) = refine::refine_square(img, raw, cells) else {
         return (*raw, 0.0, Refinement::Rejected);
     };
@@ -319,6 +318,13 @@ pub(super) fn refine_corners(
     } else {
         (*raw, shift, Refinement::Rejected)
     }
+}
+
+/// How far a refinement may move a corner of the pixel-level `raw` ones:
+/// `max_shift_px`, else a share of a cell.
+pub(super) fn shift_limit(raw: &[Pt; 4], cells: f64, max_shift_px: Option<f64>) -> f64 {
+    let cell = geometry::mean_side(raw) / cells;
+    max_shift_px.unwrap_or((cell * MAX_SHIFT_CELLS).max(MIN_SHIFT_LIMIT_PX))
 }
 
 /// A coded marker read in a tile: corners in tile pixels, marker order.

@@ -13,6 +13,7 @@ mod fiducial;
 mod found;
 pub mod geometry;
 mod harmonic;
+mod modelfit;
 mod printed;
 mod profile;
 pub mod refine;

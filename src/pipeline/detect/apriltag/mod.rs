@@ -16,8 +16,9 @@ use std::str::FromStr;
 use opencv::core::{self, Mat};
 use opencv::prelude::*;
 
-use super::fiducial::{coded_detection, grey_view, refine_corners, CodedRead};
-use super::geometry::{self, Pt};
+use super::fiducial::{coded_detection, grey_view, refine_corners, shift_limit, CodedRead};
+use super::geometry::{self, dist, Pt};
+use super::modelfit::{self, FitParams, Pattern};
 use super::refine::GreyView;
 use super::{DetectError, Detection, Detector, MarkerType, Refinement};
 
@@ -153,6 +154,7 @@ impl fmt::Display for AprilTagFamily {
 
 /// A family object created by libapriltag, destroyed with it.
 struct FamilyHandle {
+    family: AprilTagFamily,
     ptr: NonNull<sys::apriltag_family_t>,
     destroy: Destroy,
 }
@@ -164,6 +166,7 @@ impl FamilyHandle {
         // it returns null only when out of memory.
         let ptr = NonNull::new(unsafe { (entry.create)() }).expect("libapriltag: out of memory");
         FamilyHandle {
+            family,
             ptr,
             destroy: entry.destroy,
         }
@@ -202,7 +205,12 @@ pub enum TagCellsError {
 /// returns `width_at_border` (the side of the square the detector reports)
 /// and whether the family is classic (black border, white outside).
 pub fn tag_cells(family: AprilTagFamily, id: u32) -> Result<TagCells, TagCellsError> {
-    let handle = FamilyHandle::new(family);
+    draw(&FamilyHandle::new(family), id)
+}
+
+/// [`tag_cells`] of a family already made.
+fn draw(handle: &FamilyHandle, id: u32) -> Result<TagCells, TagCellsError> {
+    let family = handle.family;
     let fam = handle.get();
     if id >= fam.ncodes {
         return Err(TagCellsError::NoSuchId {
@@ -395,6 +403,52 @@ impl AprilTagDetector {
     }
 }
 
+/// Largest robust residual of a whole-tag fit, as a share of the tag's
+/// contrast, for the fit to stand: over it the drawn tag does not describe
+/// the pixels (a shadow edge across the tag, clutter over much of it) and
+/// the edge refiner's local levels place the tag better.
+const MAX_FIT_RESIDUAL_SHARE: f64 = 0.06;
+
+impl AprilTagDetector {
+    /// The whole tag, its cells now known, fitted from the edge-refined
+    /// corners (or libapriltag's, when those were rejected): see
+    /// [`modelfit`]. Kept when its corners lie within the refinement's
+    /// tolerance of libapriltag's; else `edges` stand.
+    fn fit_whole(
+        &self,
+        img: &GreyView,
+        raw: &Raw,
+        edges: ([Pt; 4], f64, Refinement),
+    ) -> ([Pt; 4], f64, Refinement) {
+        let engine = self.engine.as_ref().expect("engine until drop");
+        let Ok(cells) = draw(&engine._family, raw.id) else {
+            return edges;
+        };
+        let Some(pattern) = Pattern::new(&cells.cells, cells.width_at_border) else {
+            return edges;
+        };
+        let start = if edges.2 == Refinement::Refined {
+            edges.0
+        } else {
+            raw.corners
+        };
+        let Some(fitted) = modelfit::fit(img, &pattern, &start, &FitParams::default()) else {
+            return edges;
+        };
+        let shift = (0..4)
+            .map(|i| dist(fitted.corners[i], raw.corners[i]))
+            .fold(0.0, f64::max);
+        // Blurred by more than a cell, the cells' edges no longer place it.
+        let explained = fitted.residual <= MAX_FIT_RESIDUAL_SHARE * (fitted.white - fitted.black)
+            && fitted.blur_cells < 1.0;
+        if explained && shift <= shift_limit(&raw.corners, self.cells, self.max_shift_px) {
+            (fitted.corners, shift, Refinement::Refined)
+        } else {
+            edges
+        }
+    }
+}
+
 impl Drop for AprilTagDetector {
     fn drop(&mut self) {
         if let Some(engine) = self.engine.take() {
@@ -540,7 +594,8 @@ impl Detector for AprilTagDetector {
         let mut out = Vec::with_capacity(raws.len());
         for raw in raws {
             let (corners, shift, refinement) = if self.classic {
-                refine_corners(&img, &raw.corners, self.cells, self.max_shift_px)
+                let edges = refine_corners(&img, &raw.corners, self.cells, self.max_shift_px);
+                self.fit_whole(&img, &raw, edges)
             } else {
                 // Data cells lie outside a reversed border: no clean edge to
                 // fit; libapriltag's own edge-refined corners stand.

@@ -18,7 +18,7 @@ use opencv::prelude::*;
 
 use super::fiducial::{coded_detection, grey_view, refine_corners, shift_limit, CodedRead};
 use super::geometry::{self, dist, Pt};
-use super::modelfit::{self, FitParams, Pattern};
+use super::modelfit::{self, FitParams, Pattern, MAX_RESIDUAL_SHARE};
 use super::refine::GreyView;
 use super::{DetectError, Detection, Detector, MarkerType, Refinement};
 
@@ -403,16 +403,11 @@ impl AprilTagDetector {
     }
 }
 
-/// Largest robust residual of a whole-tag fit, as a share of the tag's
-/// contrast, for the fit to stand: over it the drawn tag does not describe
-/// the pixels (a shadow edge across the tag, clutter over much of it) and
-/// the edge refiner's local levels place the tag better.
-const MAX_FIT_RESIDUAL_SHARE: f64 = 0.06;
-
 impl AprilTagDetector {
     /// The whole tag, its cells now known, fitted from the edge-refined
     /// corners (or libapriltag's, when those were rejected): see
-    /// [`modelfit`]. Kept when its corners lie within the refinement's
+    /// [`modelfit`]. Kept when it explains the tag (see
+    /// [`MAX_RESIDUAL_SHARE`]) and its corners lie within the refinement's
     /// tolerance of libapriltag's; else `edges` stand.
     fn fit_whole(
         &self,
@@ -432,14 +427,14 @@ impl AprilTagDetector {
         } else {
             raw.corners
         };
-        let Some(fitted) = modelfit::fit(img, &pattern, &start, &FitParams::default()) else {
+        let Some(fitted) = modelfit::fit_tag(img, &pattern, &start, &FitParams::default()) else {
             return edges;
         };
         let shift = (0..4)
             .map(|i| dist(fitted.corners[i], raw.corners[i]))
             .fold(0.0, f64::max);
         // Blurred by more than a cell, the cells' edges no longer place it.
-        let explained = fitted.residual <= MAX_FIT_RESIDUAL_SHARE * (fitted.white - fitted.black)
+        let explained = fitted.residual <= MAX_RESIDUAL_SHARE * (fitted.white - fitted.black)
             && fitted.blur_cells < 1.0;
         if explained && shift <= shift_limit(&raw.corners, self.cells, self.max_shift_px) {
             (fitted.corners, shift, Refinement::Refined)

@@ -24,6 +24,7 @@ use super::fiducial::grey_view;
 use super::found::{one_per_board, to_detection, Found};
 use super::geometry::{self, Pt};
 use super::harmonic::{self, Candidate, RingBasis, Symmetry};
+use super::modelfit::{fit_checker, fit_cross, FitParams, Lines, MAX_RESIDUAL_SHARE};
 use super::profile::{self as pr, add, unit};
 use super::refine::{intersect, GreyView};
 use super::{DetectError, Detection, Detector, MarkerType, SizeRange};
@@ -106,6 +107,9 @@ pub struct Params {
     /// Share of the profiles past an arm's end showing the feature again
     /// (see `walk::continuation`) from which that arm runs on.
     pub max_continuation: f64,
+    /// Farthest the whole-target fit (see `modelfit`) may move the centre
+    /// found from the lines, pixels: farther, it has fitted something else.
+    pub max_refit_move_px: f64,
 }
 
 impl Default for Params {
@@ -129,6 +133,7 @@ impl Default for Params {
             size_slack: 1.1,
             max_repeat_score: 0.6,
             max_continuation: 0.4,
+            max_refit_move_px: 1.0,
         }
     }
 }
@@ -515,6 +520,40 @@ impl PrintedDetector {
         if repeats(img, design, &fit, &verdict, p) {
             return Err(Rejection::Repeats);
         }
+        // The centre placed by the whole drawn target (see `modelfit`),
+        // when that explains the pixels and stays near the lines' crossing.
+        let lines = Lines {
+            centre,
+            dirs,
+            lengths,
+            bar,
+        };
+        let refitted = match design.kind {
+            DesignKind::Cross => fit_cross(
+                img,
+                &lines,
+                sign > 0.0,
+                verdict.levels,
+                &FitParams::default(),
+            ),
+            // A checker (the detector holds crosses and checkers only).
+            _ => fit_checker(img, &lines, &FitParams::default()),
+        }
+        .filter(|f| {
+            f.residual <= MAX_RESIDUAL_SHARE * f.contrast
+                && geometry::dist(f.centre, centre) <= p.max_refit_move_px
+        });
+        let (centre, fit) = match &refitted {
+            Some(f) => (
+                f.centre,
+                Fit {
+                    centre: f.centre,
+                    dirs: f.dirs,
+                    ..fit
+                },
+            ),
+            None => (centre, fit),
+        };
         tracing::debug!(
             x = centre.0,
             y = centre.1,
@@ -525,6 +564,8 @@ impl PrintedDetector {
             salience = verdict.salience,
             light = verdict.levels.0,
             dark = verdict.levels.1,
+            refitted = refitted.is_some(),
+            blur = refitted.map(|f| f.blur_px),
             "printed candidate accepted"
         );
         Ok(Found {

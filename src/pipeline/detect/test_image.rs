@@ -19,6 +19,19 @@ pub fn render_image(w: usize, grey: impl Fn(f64, f64) -> f64) -> Vec<u8> {
     data
 }
 
+/// `data` (w x w) blurred by a Gaussian of `sigma` px (OpenCV's): a lens's
+/// and a sensor's blur.
+pub fn gaussian_blurred(data: &[u8], w: usize, sigma: f64) -> Vec<u8> {
+    use opencv::core::{Mat, Size};
+    use opencv::prelude::*;
+    let src = Mat::from_slice(data)
+        .and_then(|m| m.reshape(1, w as i32)?.try_clone())
+        .unwrap();
+    let mut out = Mat::default();
+    opencv::imgproc::gaussian_blur_def(&src, &mut out, Size::new(0, 0), sigma).unwrap();
+    out.data_bytes().unwrap().to_vec()
+}
+
 /// A cross target: a black square with white bars across it, both in the
 /// print's greys, on ground whose grey is a function of the position.
 pub struct Cross {

@@ -1,6 +1,6 @@
 use super::*;
 use crate::pipeline::detect::geometry;
-use crate::pipeline::detect::test_image::render_image;
+use crate::pipeline::detect::test_image::{gaussian_blurred, render_image};
 use crate::pipeline::detect::DetectorConfig;
 
 /// Tag `id` of `family` drawn as libapriltag draws it, `cell` px a cell,
@@ -174,16 +174,6 @@ fn families_correct_as_many_bits_as_keep_false_reads_rare() {
     }
 }
 
-/// `data` (w x w) blurred by a Gaussian of `sigma` px (OpenCV's).
-fn blurred(data: &[u8], w: usize, sigma: f64) -> Vec<u8> {
-    let src = Mat::from_slice(data)
-        .and_then(|m| m.reshape(1, w as i32)?.try_clone())
-        .unwrap();
-    let mut out = Mat::default();
-    opencv::imgproc::gaussian_blur_def(&src, &mut out, core::Size::new(0, 0), sigma).unwrap();
-    out.data_bytes().unwrap().to_vec()
-}
-
 /// Tags of 18-20 px (cells of 2.3-2.5 px) under a blur of 1.2 px: on the
 /// search scale a blurred black cell falls on the white side of the
 /// threshold (two of these six are found on it alone), so the
@@ -199,7 +189,7 @@ fn the_smallest_blurred_tags_are_found() {
         let id = 5 + 31 * k as u32;
         let centre = (31.6 + 0.13 * k as f64, 32.3 - 0.17 * k as f64);
         let (sharp, _) = draw(family, id, w, centre, cell, angle);
-        let data = blurred(&sharp, w, 1.2);
+        let data = gaussian_blurred(&sharp, w, 1.2);
         let found = detect(family, &data, w);
         match found.as_slice() {
             [d] if d.marker_id == Some(id) && geometry::dist(d.center, centre) < 0.3 => {}

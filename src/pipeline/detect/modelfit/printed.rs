@@ -298,24 +298,16 @@ pub fn fit_checker(img: &GreyView, lines: &Lines, params: &FitParams) -> Option<
 #[cfg(test)]
 mod tests {
     use super::super::super::geometry::dist;
-    use super::super::super::test_image::{render_image, Cross};
+    use super::super::super::test_image::{gaussian_blurred, render_image, Cross};
     use super::*;
 
     /// Images are rendered from 4x4 subsamples per pixel, which place an
     /// edge to a quarter of a pixel: the targets' edges lie on quarters.
     const W: usize = 96;
 
-    /// `data` blurred by a Gaussian of 1 px (OpenCV's): a lens's and a
-    /// sensor's blur.
+    /// `data` blurred by 1 px.
     fn blurred(data: Vec<u8>) -> Vec<u8> {
-        use opencv::core::{Mat, Size};
-        use opencv::prelude::*;
-        let src = Mat::from_slice(&data)
-            .and_then(|m| m.reshape(1, W as i32)?.try_clone())
-            .unwrap();
-        let mut out = Mat::default();
-        opencv::imgproc::gaussian_blur_def(&src, &mut out, Size::new(0, 0), 1.0).unwrap();
-        out.data_bytes().unwrap().to_vec()
+        gaussian_blurred(&data, W, 1.0)
     }
 
     fn view(data: &[u8]) -> GreyView<'_> {

@@ -105,17 +105,27 @@ fn measure(mode: MarkerType, seed0: u64) -> Figures {
     Figures { recall, errors }
 }
 
-/// Recall is 90.8% here (109 of 120) and the 95th percentile of centre
-/// error a little over 0.3 px: issue 44 asks 98% per design and 0.3 px;
-/// the misses are low-contrast targets with a shadow's edge across them
-/// and targets partly covered by objects. This guards what is reached.
+/// Recall is 96.7% here (116 of 120): issue 44 asks 98% per design; the
+/// misses are low-contrast targets with a shadow's edge across them and
+/// targets partly covered by objects. Centres, per design, as issue 44
+/// asks (median 0.1 px, p95 0.3 px): crosses 0.031 / 0.23 px, checkers
+/// 0.013 / 0.036 (crosses' p95 was 0.35 before the whole-target fit).
 #[test]
 fn crosshair_and_checker_targets_are_found_to_a_tenth_of_a_pixel() {
     let f = measure(MarkerType::Crosshair, 300);
     assert!(f.recall >= 0.9, "recall {}", f.recall);
-    let all = f.errors.concat();
-    assert!(quantile(&all, 0.5) <= 0.1, "median");
-    assert!(quantile(&all, 0.95) <= 0.35, "p95 {}", quantile(&all, 0.95));
+    for (k, e) in f.errors.iter().enumerate() {
+        assert!(
+            quantile(e, 0.5) <= 0.1,
+            "design {k}: median {}",
+            quantile(e, 0.5)
+        );
+        assert!(
+            quantile(e, 0.95) <= 0.3,
+            "design {k}: p95 {}",
+            quantile(e, 0.95)
+        );
+    }
 }
 
 /// Bullseyes of ring ratios from 1:1.4:2.2 to 1:3:4 (the generator's

@@ -29,7 +29,7 @@ const PUTS_AT_ONCE: usize = 8;
 
 /// Most MiB of files one [`SharedFiles::publish`] holds in memory at once
 /// (a larger file alone takes the whole budget).
-pub const PUT_MIB_IN_FLIGHT: u64 = 256;
+const PUT_MIB_IN_FLIGHT: u64 = 256;
 
 pub struct SharedFiles {
     client: Arc<AmazonS3>,

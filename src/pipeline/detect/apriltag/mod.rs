@@ -314,8 +314,8 @@ fn search_scale() -> [u8; 256] {
 struct Engine {
     td: NonNull<sys::apriltag_detector_t>,
     /// Kept alive (declared after `td`, so dropped after it) because the
-    /// detector points to it.
-    _family: FamilyHandle,
+    /// detector points to it; also draws a decoded tag's cells.
+    handle: FamilyHandle,
     family: AprilTagFamily,
     decimate: f32,
 }
@@ -345,7 +345,7 @@ impl Engine {
         }
         Engine {
             td,
-            _family: handle,
+            handle,
             family,
             decimate,
         }
@@ -391,7 +391,7 @@ impl AprilTagDetector {
             Some(pool.swap_remove(i))
         });
         let engine = pooled.unwrap_or_else(|| Engine::new(family, decimate));
-        let fam = engine._family.get();
+        let fam = engine.handle.get();
         AprilTagDetector {
             cells: fam.width_at_border as f64,
             classic: !fam.reversed_border,
@@ -416,7 +416,7 @@ impl AprilTagDetector {
         edges: ([Pt; 4], f64, Refinement),
     ) -> ([Pt; 4], f64, Refinement) {
         let engine = self.engine.as_ref().expect("engine until drop");
-        let Ok(cells) = draw(&engine._family, raw.id) else {
+        let Ok(cells) = draw(&engine.handle, raw.id) else {
             return edges;
         };
         let Some(pattern) = Pattern::new(&cells.cells, cells.width_at_border) else {
